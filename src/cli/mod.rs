@@ -1,0 +1,41 @@
+//! Command-line parsing and one module per subcommand.
+
+mod demo;
+
+use clap::{Parser, Subcommand};
+
+/// Dense non-rigid shape correspondence with random forests.
+#[derive(Debug, Parser)]
+#[command(name = "shapeforest", version, about)]
+pub struct Cli {
+    /// More log output (-v: debug, -vv: trace). `RUST_LOG` overrides.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    pub verbose: u8,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run the method end to end on built-in synthetic data and report what it reached.
+    Demo(demo::DemoArgs),
+}
+
+/// Sets up `tracing` output on stderr.
+pub fn init_tracing(verbose: u8) {
+    let default = match verbose {
+        0 => "info",
+        1 => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).try_init();
+}
+
+/// Dispatches a parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Demo(args) => demo::run(args),
+    }
+}

@@ -1,0 +1,27 @@
+//! The crate-wide error type: one variant per core module, each wrapping that module's
+//! own `thiserror` enum.
+
+use thiserror::Error;
+
+/// Any error raised by the shapeforest library.
+#[derive(Debug, Error)]
+pub enum Error {
+    /// Reading, writing or validating a mesh failed.
+    #[error(transparent)]
+    Mesh(#[from] crate::mesh::MeshError),
+    /// Building or solving the Laplace eigenproblem failed.
+    #[error(transparent)]
+    Spectral(#[from] crate::spectral::SpectralError),
+    /// Descriptor parameters were invalid.
+    #[error(transparent)]
+    Descriptor(#[from] crate::descriptor::DescriptorError),
+    /// Geodesic distance computation failed.
+    #[error(transparent)]
+    Geodesic(#[from] crate::geodesic::GeodesicError),
+    /// Training, predicting with, or storing a random forest failed.
+    #[error(transparent)]
+    Forest(#[from] crate::forest::ForestError),
+}
+
+/// Result alias using the crate [`enum@Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -1,0 +1,171 @@
+//! Triangle meshes: the [`Mesh`] type, validation, geometric quantities and summaries.
+//!
+//! Conventions: vertices are `[x, y, z]` in `f64`, faces are 0-based vertex index triples with
+//! counter-clockwise orientation. Loading never reorders vertices (ground-truth correspondence
+//! is by vertex index) and never drops unreferenced vertices.
+
+mod error;
+
+pub use error::MeshError;
+
+use serde::{Deserialize, Serialize};
+
+/// A triangle mesh: vertex positions and 0-based triangle indices.
+///
+/// A `Mesh` built through [`Mesh::new`] is guaranteed non-empty, with finite coordinates,
+/// face indices in range and no face repeating a vertex.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Mesh {
+    /// Vertex positions.
+    pub vertices: Vec<[f64; 3]>,
+    /// Triangles as 0-based vertex indices.
+    pub faces: Vec<[usize; 3]>,
+}
+
+impl Mesh {
+    /// Builds a mesh, checking the invariants every algorithm relies on.
+    ///
+    /// ```
+    /// use shapeforest::mesh::Mesh;
+    /// let m = Mesh::new(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2]]).unwrap();
+    /// assert_eq!(m.n_faces(), 1);
+    /// assert!(Mesh::new(vec![[0.0; 3]], vec![[0, 1, 2]]).is_err());
+    /// ```
+    pub fn new(vertices: Vec<[f64; 3]>, faces: Vec<[usize; 3]>) -> Result<Self, MeshError> {
+        if vertices.is_empty() || faces.is_empty() {
+            return Err(MeshError::Empty { vertices: vertices.len(), faces: faces.len() });
+        }
+        if let Some(v) = vertices.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
+            return Err(MeshError::NonFiniteVertex { vertex: v });
+        }
+        let n = vertices.len();
+        for (f, tri) in faces.iter().enumerate() {
+            if let Some(&index) = tri.iter().find(|&&i| i >= n) {
+                return Err(MeshError::FaceIndexOutOfRange { face: f, index, n_vertices: n });
+            }
+            if tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2] {
+                return Err(MeshError::RepeatedVertexInFace { face: f, indices: *tri });
+            }
+        }
+        Ok(Self { vertices, faces })
+    }
+
+    /// Number of vertices.
+    pub fn n_vertices(&self) -> usize {
+        self.vertices.len()
+    }
+
+    /// Number of triangles.
+    pub fn n_faces(&self) -> usize {
+        self.faces.len()
+    }
+
+    /// Area of every triangle.
+    ///
+    /// ```
+    /// use shapeforest::mesh::Mesh;
+    /// let m = Mesh::new(vec![[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2]]).unwrap();
+    /// assert!((m.face_areas()[0] - 1.0).abs() < 1e-12);
+    /// ```
+    pub fn face_areas(&self) -> Vec<f64> {
+        self.faces
+            .iter()
+            .map(|f| triangle_area(self.vertices[f[0]], self.vertices[f[1]], self.vertices[f[2]]))
+            .collect()
+    }
+
+    /// Total surface area.
+    pub fn surface_area(&self) -> f64 {
+        self.face_areas().iter().sum()
+    }
+
+    /// Axis-aligned bounding box `(min, max)`.
+    pub fn bounding_box(&self) -> ([f64; 3], [f64; 3]) {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in &self.vertices {
+            for d in 0..3 {
+                lo[d] = lo[d].min(p[d]);
+                hi[d] = hi[d].max(p[d]);
+            }
+        }
+        (lo, hi)
+    }
+
+    /// A 64-bit FNV-1a hash of the exact vertex coordinates and faces: two meshes with the same
+    /// hash are (with overwhelming probability) bit-identical. Used to key caches.
+    pub fn content_hash(&self) -> u64 {
+        let mut h = Fnv64::new();
+        h.write_u64(self.vertices.len() as u64);
+        h.write_u64(self.faces.len() as u64);
+        for p in &self.vertices {
+            for c in p {
+                h.write_u64(c.to_bits());
+            }
+        }
+        for f in &self.faces {
+            for &i in f {
+                h.write_u64(i as u64);
+            }
+        }
+        h.finish()
+    }
+
+    /// A copy with every coordinate multiplied by `factor`.
+    pub fn scaled(&self, factor: f64) -> Mesh {
+        Mesh {
+            vertices: self.vertices.iter().map(|p| [p[0] * factor, p[1] * factor, p[2] * factor]).collect(),
+            faces: self.faces.clone(),
+        }
+    }
+}
+
+/// Area of the triangle `(a, b, c)`.
+pub fn triangle_area(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> f64 {
+    0.5 * norm(cross(sub(b, a), sub(c, a)))
+}
+
+#[inline]
+pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+#[inline]
+pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline]
+pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+#[inline]
+pub(crate) fn norm(a: [f64; 3]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+/// FNV-1a, 64 bit: small, stable across platforms and Rust versions (unlike `DefaultHasher`).
+pub(crate) struct Fnv64(u64);
+
+impl Fnv64 {
+    pub(crate) fn new() -> Self {
+        Self(0xcbf2_9ce4_8422_2325)
+    }
+    pub(crate) fn write_u64(&mut self, x: u64) {
+        for b in x.to_le_bytes() {
+            self.0 ^= b as u64;
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+    #[allow(dead_code)]
+    pub(crate) fn write_bytes(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 ^= b as u64;
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+    pub(crate) fn finish(&self) -> u64 {
+        self.0
+    }
+}
