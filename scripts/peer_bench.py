@@ -1,0 +1,99 @@
+#!/usr/bin/env python3
+"""Peer timings for `shapeforest bench`: scipy's eigsh and potpourri3d's heat method on the
+same meshes, with the same cotangent Laplacian, lumped mass, unit-area scaling and shift.
+
+Usage: peer_bench.py MANIFEST.json OUT.json
+MANIFEST lists meshes written by `shapeforest bench` (OFF files) with the parameters used:
+{"k": 100, "shift": -0.01, "sources": 50, "meshes": [{"name": ..., "path": ..., "sources": [...]}, ...]}
+Writes per mesh: eigsh seconds and eigenvalues, heat-method setup and solve seconds.
+"""
+import json
+import sys
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+
+def read_off(path):
+    with open(path) as f:
+        tokens = [t for line in f for t in line.split("#", 1)[0].split()]
+    assert tokens[0].upper().endswith("OFF"), f"{path}: not an OFF file"
+    nv, nf = int(tokens[1]), int(tokens[2])
+    pos = 4
+    v = np.array(tokens[pos:pos + 3 * nv], dtype=np.float64).reshape(nv, 3)
+    pos += 3 * nv
+    faces = []
+    for _ in range(nf):
+        n = int(tokens[pos])
+        idx = [int(t) for t in tokens[pos + 1:pos + 1 + n]]
+        pos += 1 + n
+        for j in range(1, n - 1):
+            faces.append((idx[0], idx[j], idx[j + 1]))
+    return v, np.array(faces, dtype=np.int64)
+
+
+def cotan_laplacian_and_mass(v, f):
+    """Cotangent stiffness L (PSD, rows sum to zero) and lumped barycentric mass, as shapeforest."""
+    n = len(v)
+    rows, cols, vals = [], [], []
+    p = [v[f[:, c]] for c in range(3)]
+    for c in range(3):
+        a, b = (c + 1) % 3, (c + 2) % 3
+        u, w = p[a] - p[c], p[b] - p[c]
+        cr = np.linalg.norm(np.cross(u, w), axis=1)
+        scale = np.maximum((u * u).sum(1), (w * w).sum(1))
+        ok = cr > 1e-14 * scale
+        cot = np.zeros(len(f))
+        cot[ok] = (u * w).sum(1)[ok] / cr[ok]
+        wgt = 0.5 * cot
+        i, j = f[:, a], f[:, b]
+        rows += [i, j, i, j]
+        cols += [j, i, i, j]
+        vals += [-wgt, -wgt, wgt, wgt]
+    L = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    area = 0.5 * np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0]), axis=1)
+    mass = np.zeros(n)
+    for c in range(3):
+        np.add.at(mass, f[:, c], area / 3.0)
+    return L, mass
+
+
+def main():
+    manifest = json.load(open(sys.argv[1]))
+    out = {"peer": {}, "meshes": []}
+    try:
+        import potpourri3d as pp3d
+        out["peer"]["potpourri3d"] = getattr(pp3d, "__version__", "installed")
+    except ImportError:
+        pp3d = None
+    import scipy
+    out["peer"]["scipy"] = scipy.__version__
+    k, shift = manifest["k"], manifest["shift"]
+    for m in manifest["meshes"]:
+        v, f = read_off(m["path"])
+        L, mass = cotan_laplacian_and_mass(v, f)
+        total = mass.sum()
+        M = sp.diags(mass / total).tocsc()  # unit-area mass; L is scale invariant
+        t0 = time.perf_counter()
+        vals, _ = sla.eigsh(L, k=k, M=M, sigma=shift, which="LM")
+        t_eig = time.perf_counter() - t0
+        rec = {"name": m["name"], "vertices": len(v), "eigsh_s": t_eig, "eigenvalues": sorted(vals.tolist())}
+        if pp3d is not None:
+            t0 = time.perf_counter()
+            solver = pp3d.MeshHeatMethodDistanceSolver(v, f)
+            t_setup = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            for s in m["sources"]:
+                solver.compute_distance(int(s))
+            rec["heat_setup_s"] = t_setup
+            rec["heat_solve_s"] = time.perf_counter() - t0
+        print(f"peer {m['name']:>14} {len(v):>6} v  eigsh {t_eig:7.3f} s"
+              + (f"  heat {rec['heat_setup_s']:.3f} + {rec['heat_solve_s']:.3f} s" if pp3d else ""), flush=True)
+        out["meshes"].append(rec)
+    json.dump(out, open(sys.argv[2], "w"), indent=1)
+
+
+if __name__ == "__main__":
+    main()
