@@ -81,7 +81,8 @@ pub fn parse_mesh(bytes: &[u8], format: MeshFormat) -> Result<(Mesh, MeshReport)
         MeshFormat::Obj => parse_obj(bytes),
         MeshFormat::Ply => parse_ply(bytes),
         MeshFormat::Tosca => Err(MeshError::Unsupported {
-            what: "reading a TOSCA mesh from one buffer (use parse_tosca with the .vert and .tri data)".into(),
+            what: "reading a TOSCA mesh from one buffer (use parse_tosca with the .vert and .tri data)"
+                .into(),
         }),
     }
 }
@@ -124,7 +125,11 @@ impl Output {
     /// Creates `path`, gzip-compressing when `gz`.
     fn create(path: &Path, gz: bool) -> Result<Output, MeshError> {
         let file = BufWriter::new(File::create(path).map_err(|e| MeshError::Io(e).in_file(path))?);
-        Ok(if gz { Output::Gz(flate2::write::GzEncoder::new(file, flate2::Compression::default())) } else { Output::Plain(file) })
+        Ok(if gz {
+            Output::Gz(flate2::write::GzEncoder::new(file, flate2::Compression::default()))
+        } else {
+            Output::Plain(file)
+        })
     }
 
     /// Flushes everything (for gzip, the trailer too), reporting any error.
@@ -161,7 +166,8 @@ pub fn write_mesh(path: impl AsRef<Path>, mesh: &Mesh) -> Result<(), MeshError> 
     let format = MeshFormat::from_path(path).map_err(|e| e.in_file(path))?;
     let (stem, gz) = split_gz(path);
     if format == MeshFormat::Tosca {
-        let name = |ext: &str| if gz { stem.with_extension(format!("{ext}.gz")) } else { stem.with_extension(ext) };
+        let name =
+            |ext: &str| if gz { stem.with_extension(format!("{ext}.gz")) } else { stem.with_extension(ext) };
         let (vert_path, tri_path) = (name("vert"), name("tri"));
         let mut vert = Output::create(&vert_path, gz)?;
         let mut tri = Output::create(&tri_path, gz)?;

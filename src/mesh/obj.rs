@@ -93,10 +93,16 @@ pub fn parse_obj(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
         notes.push(MeshWarning::PolygonsTriangulated { polygons, triangles: polygon_triangles });
     }
     if points_lines > 0 {
-        notes.push(MeshWarning::Ignored { what: "OBJ point/line statement(s) (`p`, `l`)".into(), count: points_lines });
+        notes.push(MeshWarning::Ignored {
+            what: "OBJ point/line statement(s) (`p`, `l`)".into(),
+            count: points_lines,
+        });
     }
     if unknown > 0 {
-        notes.push(MeshWarning::Ignored { what: "OBJ statement(s) with unknown keywords".into(), count: unknown });
+        notes.push(MeshWarning::Ignored {
+            what: "OBJ statement(s) with unknown keywords".into(),
+            count: unknown,
+        });
     }
     finish(vertices, faces, MeshFormat::Obj, notes)
 }
@@ -214,11 +220,20 @@ mod tests {
     #[test]
     fn messages_name_the_line() {
         assert_eq!(err("v 0 0\n"), "line 1: expected 3 coordinates, found 2");
-        assert_eq!(err("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"), "line 4: face 0 refers to vertex 8, but the mesh has 3 vertices");
+        assert_eq!(
+            err("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"),
+            "line 4: face 0 refers to vertex 8, but the mesh has 3 vertices"
+        );
         assert_eq!(err("v 0 0 0\nf 1 0 1\n"), "line 2: expected a 1-based vertex index, found \"0\"");
-        assert_eq!(err("v 0 0 0\nf -2 1 1\n"), "line 2: expected a relative vertex index within the 1 vertices defined so far, found \"-2\"");
+        assert_eq!(
+            err("v 0 0 0\nf -2 1 1\n"),
+            "line 2: expected a relative vertex index within the 1 vertices defined so far, found \"-2\""
+        );
         assert_eq!(err("v 0 0 0\nv inf 0 0\n"), "line 2: vertex 1 has a NaN or infinite coordinate");
-        assert_eq!(err("v 0 0 0\nv 1 1 1\np 1\n"), "point clouds are not supported: the mesh has 2 vertices but no faces");
+        assert_eq!(
+            err("v 0 0 0\nv 1 1 1\np 1\n"),
+            "point clouds are not supported: the mesh has 2 vertices but no faces"
+        );
         assert_eq!(err("# nothing\n"), "empty mesh: 0 vertices, 0 faces");
     }
 

@@ -94,7 +94,10 @@ pub fn parse_off(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
     let mut vertices = Vec::with_capacity(capped_capacity(n_vertices, bytes.len(), 6));
     for i in 0..n_vertices {
         let Some((line, text)) = lines.next() else {
-            return Err(MeshError::Truncated { expected: format!("{n_vertices} vertices"), found: i.to_string() });
+            return Err(MeshError::Truncated {
+                expected: format!("{n_vertices} vertices"),
+                found: i.to_string(),
+            });
         };
         let p = parse_xyz(line, text)?;
         check_vertex(i, p).map_err(|e| e.at_line(line))?;
@@ -110,13 +113,19 @@ pub fn parse_off(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
         };
         let mut toks = tokens(text);
         let n_tok = toks.next().unwrap_or_default();
-        let n = parse_usize(n_tok).ok_or_else(|| MeshError::parse_at(line, "a face's vertex count", show(n_tok)))?;
+        let n = parse_usize(n_tok)
+            .ok_or_else(|| MeshError::parse_at(line, "a face's vertex count", show(n_tok)))?;
         if n < 3 {
-            return Err(MeshError::parse_at(line, "a face with at least 3 vertices", format!("{n} vertices")));
+            return Err(MeshError::parse_at(
+                line,
+                "a face with at least 3 vertices",
+                format!("{n} vertices"),
+            ));
         }
         polygon.clear();
         for tok in toks.by_ref().take(n) {
-            let index = parse_usize(tok).ok_or_else(|| MeshError::parse_at(line, "a vertex index", show(tok)))?;
+            let index =
+                parse_usize(tok).ok_or_else(|| MeshError::parse_at(line, "a vertex index", show(tok)))?;
             polygon.push(index);
         }
         if polygon.len() < n {
@@ -140,7 +149,9 @@ pub fn parse_off(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
 fn check_keyword(line: usize, keyword: &[u8]) -> Result<(), MeshError> {
     let mut prefix = &keyword[..keyword.len() - 3];
     if prefix.contains(&b'4') || prefix.contains(&b'n') {
-        return Err(MeshError::Unsupported { what: format!("{} (4-D or n-D OFF)", show(keyword)) }.at_line(line));
+        return Err(
+            MeshError::Unsupported { what: format!("{} (4-D or n-D OFF)", show(keyword)) }.at_line(line)
+        );
     }
     for opt in [&b"ST"[..], b"C", b"N"] {
         if let Some(rest) = prefix.strip_prefix(opt) {
@@ -200,31 +211,53 @@ mod tests {
 
     #[test]
     fn colours_and_extra_columns_are_ignored() {
-        let text = "COFF\n3 1 0\n0 0 0 255 0 0 255\n1 0 0 0 255 0 255\n0 1 0 0 0 255 255\n3 0 1 2 0.5 0.5 0.5\n";
+        let text =
+            "COFF\n3 1 0\n0 0 0 255 0 0 255\n1 0 0 0 255 0 255\n0 1 0 0 0 255 255\n3 0 1 2 0.5 0.5 0.5\n";
         let (m, _) = parse_off(text.as_bytes()).unwrap();
         assert_eq!(m.vertices, vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
     }
 
     #[test]
     fn messages_name_the_line_and_the_problem() {
-        assert_eq!(err("OFF\n2 1 0\n0 0 0\n1 0\n3 0 1 0\n").to_string(), "line 4: expected 3 coordinates, found 2");
+        assert_eq!(
+            err("OFF\n2 1 0\n0 0 0\n1 0\n3 0 1 0\n").to_string(),
+            "line 4: expected 3 coordinates, found 2"
+        );
         assert_eq!(err("OFF\n1 0 0\n0 0 x\n").to_string(), "line 3: expected a number, found \"x\"");
-        assert_eq!(err("OFF\n2 1 0\n0 0 0\n1 0 nan\n").to_string(), "line 4: vertex 1 has a NaN or infinite coordinate");
+        assert_eq!(
+            err("OFF\n2 1 0\n0 0 0\n1 0 nan\n").to_string(),
+            "line 4: vertex 1 has a NaN or infinite coordinate"
+        );
         assert_eq!(
             err("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n").to_string(),
             "line 6: face 0 refers to vertex 7, but the mesh has 3 vertices"
         );
-        assert_eq!(err("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 1\n").to_string(), "line 6: face 0 repeats a vertex: [0, 1, 1]");
-        assert_eq!(err("OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n").to_string(), "the file ends early: expected 2 faces, found 1");
+        assert_eq!(
+            err("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 1\n").to_string(),
+            "line 6: face 0 repeats a vertex: [0, 1, 1]"
+        );
+        assert_eq!(
+            err("OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n").to_string(),
+            "the file ends early: expected 2 faces, found 1"
+        );
         assert_eq!(
             err("OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n").to_string(),
             "point clouds are not supported: the mesh has 3 vertices but no faces"
         );
-        assert_eq!(err("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n").to_string(), "line 6: expected a face with at least 3 vertices, found 2 vertices");
-        assert_eq!(err("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n4 0 1 2\n").to_string(), "line 6: expected 4 vertex indices, found 3");
+        assert_eq!(
+            err("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n").to_string(),
+            "line 6: expected a face with at least 3 vertices, found 2 vertices"
+        );
+        assert_eq!(
+            err("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n4 0 1 2\n").to_string(),
+            "line 6: expected 4 vertex indices, found 3"
+        );
         assert_eq!(err("OFF BINARY\n").to_string(), "line 1: binary OFF is not supported");
         assert!(err("4OFF\n").to_string().contains("not supported"));
-        assert_eq!(err("PLY\n").to_string(), "line 1: expected an OFF header such as `OFF` or `COFF`, found \"PLY\"");
+        assert_eq!(
+            err("PLY\n").to_string(),
+            "line 1: expected an OFF header such as `OFF` or `COFF`, found \"PLY\""
+        );
         assert_eq!(err("").to_string(), "the file ends early: expected an OFF header, found an empty file");
         assert_eq!(err("OFF\n0 0 0\n").to_string(), "empty mesh: 0 vertices, 0 faces");
     }

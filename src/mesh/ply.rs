@@ -17,7 +17,9 @@
 use std::io::Write;
 
 use ply_rs_bw::parser::{Parser, Reader};
-use ply_rs_bw::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyAccessResult, PropertyType, ScalarType};
+use ply_rs_bw::ply::{
+    ElementDef, Encoding, Property, PropertyAccess, PropertyAccessResult, PropertyType, ScalarType,
+};
 
 use super::error::Location;
 use super::report::{check_face, check_vertex, finish, push_fan, MeshFormat, MeshReport, MeshWarning};
@@ -232,7 +234,8 @@ pub fn parse_ply(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
     });
     let slack = usize::from(ascii); // the last ascii line may lack its newline
     if required > remaining.saturating_add(slack) {
-        let declared: Vec<String> = header.elements.values().map(|d| format!("{} '{}'", d.count, d.name)).collect();
+        let declared: Vec<String> =
+            header.elements.values().map(|d| format!("{} '{}'", d.count, d.name)).collect();
         return Err(MeshError::Truncated {
             expected: format!("{} elements (at least {required} bytes)", declared.join(", ")),
             found: format!("{remaining} bytes after the header"),
@@ -300,7 +303,8 @@ pub fn parse_ply(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
         polygon.clear();
         for &i in &face.indices {
             let index = usize::try_from(i).map_err(|_| {
-                MeshError::Parse { expected: "a non-negative vertex index".into(), found: i.to_string() }.at(at())
+                MeshError::Parse { expected: "a non-negative vertex index".into(), found: i.to_string() }
+                    .at(at())
             })?;
             polygon.push(index);
         }
@@ -327,7 +331,10 @@ pub fn parse_ply(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
             .filter(|d| d.name != "vertex" && d.name != "face" && d.count > 0)
             .map(|d| d.name.as_str())
             .collect();
-        notes.push(MeshWarning::Ignored { what: format!("PLY element(s) of kind {}", names.join(", ")), count: ignored });
+        notes.push(MeshWarning::Ignored {
+            what: format!("PLY element(s) of kind {}", names.join(", ")),
+            count: ignored,
+        });
     }
     finish(vertices, faces, MeshFormat::Ply, notes)
 }
@@ -414,7 +421,8 @@ pub fn write_ply<W: Write>(
 mod tests {
     use super::*;
 
-    const HEAD: &str = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+    const HEAD: &str =
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
                         element face 1\nproperty list uchar int vertex_indices\nend_header\n";
 
     fn err(text: &str) -> String {
@@ -423,9 +431,18 @@ mod tests {
 
     #[test]
     fn ascii_errors_carry_payload_line_numbers() {
-        assert_eq!(err(&format!("{HEAD}0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n")), "line 13: face 0 refers to vertex 5, but the mesh has 3 vertices");
-        assert_eq!(err(&format!("{HEAD}0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n")), "line 13: expected a non-negative vertex index, found -1");
-        assert_eq!(err(&format!("{HEAD}0 0 0\n1 0 0\n0 1 0\n2 0 1\n")), "line 13: expected a face with at least 3 vertices, found 2 vertices");
+        assert_eq!(
+            err(&format!("{HEAD}0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n")),
+            "line 13: face 0 refers to vertex 5, but the mesh has 3 vertices"
+        );
+        assert_eq!(
+            err(&format!("{HEAD}0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n")),
+            "line 13: expected a non-negative vertex index, found -1"
+        );
+        assert_eq!(
+            err(&format!("{HEAD}0 0 0\n1 0 0\n0 1 0\n2 0 1\n")),
+            "line 13: expected a face with at least 3 vertices, found 2 vertices"
+        );
         let e = parse_ply(format!("{HEAD}0 0 0\n1 0 0\n0 x 0\n3 0 1 2\n").as_bytes()).unwrap_err();
         assert_eq!(e.line(), Some(12), "{e}");
     }
@@ -445,18 +462,21 @@ mod tests {
 
     #[test]
     fn header_problems_are_named() {
-        let text = "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n0 0\n";
+        let text =
+            "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n0 0\n";
         assert!(err(text).starts_with("expected a vertex property `z`"), "{}", err(text));
         let text = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n";
         assert_eq!(err(text), "point clouds are not supported: the mesh has 3 vertices but no faces");
-        let text = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+        let text =
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
                     element face 1\nproperty list uchar float vertex_indices\nend_header\n";
         assert!(err(text).contains("list of integers"), "{}", err(text));
     }
 
     #[test]
     fn colours_normals_and_other_elements_are_ignored() {
-        let text = "ply\nformat ascii 1.0\ncomment hi\nelement vertex 4\nproperty double x\nproperty double y\n\
+        let text =
+            "ply\nformat ascii 1.0\ncomment hi\nelement vertex 4\nproperty double x\nproperty double y\n\
                     property double z\nproperty float nx\nproperty uchar red\nelement face 1\n\
                     property uchar flags\nproperty list uchar uint vertex_index\nelement edge 1\n\
                     property int vertex1\nproperty int vertex2\nend_header\n\

@@ -332,7 +332,11 @@ impl UnionFind {
 impl fmt::Display for MeshSummary {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let (lo, hi) = self.bounding_box;
-        writeln!(f, "vertices             {} ({} unreferenced)", self.n_vertices, self.n_unreferenced_vertices)?;
+        writeln!(
+            f,
+            "vertices             {} ({} unreferenced)",
+            self.n_vertices, self.n_unreferenced_vertices
+        )?;
         writeln!(
             f,
             "faces                {} ({} zero-area, {} duplicate)",

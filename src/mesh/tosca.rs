@@ -8,7 +8,9 @@
 use std::io::Write;
 
 use super::report::{check_face, check_vertex, finish, MeshFormat, MeshReport};
-use super::text::{capped_capacity, gunzip_if_needed, parse_f64, parse_usize, parse_xyz, show, tokens, Lines};
+use super::text::{
+    capped_capacity, gunzip_if_needed, parse_f64, parse_usize, parse_xyz, show, tokens, Lines,
+};
 use super::{Mesh, MeshError};
 
 /// Parses the vertices of a `.vert` file (plain or gzip-compressed).
@@ -43,7 +45,8 @@ pub fn parse_tri(bytes: &[u8], n_vertices: usize) -> Result<Vec<[usize; 3]>, Mes
         let mut tri = [0usize; 3];
         let mut found = 0;
         for tok in tokens(text).take(3) {
-            tri[found] = parse_one_based(tok).ok_or_else(|| MeshError::parse_at(line, "a 1-based vertex index", show(tok)))?;
+            tri[found] = parse_one_based(tok)
+                .ok_or_else(|| MeshError::parse_at(line, "a 1-based vertex index", show(tok)))?;
             found += 1;
         }
         if found < 3 {
