@@ -268,7 +268,7 @@ pub fn parse_ply(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
             _ => {
                 ignored = ignored.saturating_add(def.count);
                 // A binary element without properties occupies no bytes: nothing to read.
-                if !(def.properties.is_empty() && !ascii) {
+                if ascii || !def.properties.is_empty() {
                     Parser::<Skip>::new()
                         .read_payload_for_element(&mut reader, def, &header)
                         .map_err(|e| ply_error(e, ascii, Some(def)))?;
