@@ -432,3 +432,14 @@ fn every_real_tosca_r5k_mesh_reads_and_its_ground_truth_indices_fit() {
     }
     assert!(n_read > 0, "no .off.gz files in {}", shapes.display());
 }
+
+#[test]
+fn errors_and_reports_can_cross_threads() {
+    fn assert_send_sync<T: Send + Sync + 'static>() {}
+    assert_send_sync::<MeshError>();
+    assert_send_sync::<shapeforest::mesh::MeshReport>();
+    assert_send_sync::<shapeforest::mesh::MeshSummary>();
+    // And convert into the crate error.
+    let e: shapeforest::Error = parse_off(b"").unwrap_err().into();
+    assert!(e.to_string().contains("expected an OFF header"));
+}
