@@ -197,7 +197,7 @@ impl RandomForestValidParams {
     }
 
     /// Incremental growth. With `previous = None`, a fresh fit. With `Some(prev)`, the policy is:
-    /// grow `trees_per_update` new trees on `set` (typically the enlarged training set) with
+    /// grow `min(trees_per_update, n_trees)` new trees on `set` (typically the enlarged training set) with
     /// `prev`'s label set, `K` and energy grid (so old and new trees agree on the descriptor),
     /// append them, and retire the **oldest** trees beyond `n_trees`. The new trees get seeds
     /// that continue `prev`'s sequence. `prev` is not modified and stays usable meanwhile.
@@ -227,7 +227,13 @@ impl RandomForestValidParams {
                 if set.k() < prev.k {
                     return Err(ForestError::SpectrumTooShort { needed: prev.k, found: set.k() });
                 }
-                (prev.k, prev.grid, p.trees_per_update, prev.next_tree_index, prev.trees.clone())
+                (
+                    prev.k,
+                    prev.grid,
+                    p.trees_per_update.min(p.n_trees),
+                    prev.next_tree_index,
+                    prev.trees.clone(),
+                )
             }
         };
         if p.k_min > k {

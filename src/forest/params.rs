@@ -110,7 +110,7 @@ impl RandomForestParams {
         wks_sigma_factor: f64);
     setter!(
         /// Trees grown by an incremental update [`RandomForestValidParams::fit_with`]
-        /// (default 5; at least 1 and at most `n_trees`).
+        /// (default 5, at least 1; capped at `n_trees`).
         trees_per_update: usize);
     setter!(
         /// Nodes with at least this many samples evaluate their candidates in parallel
@@ -165,14 +165,8 @@ impl RandomForestParams {
                 format!("must be finite and greater than 0, got {}", self.wks_sigma_factor),
             );
         }
-        if self.trees_per_update < 1 || self.trees_per_update > self.n_trees {
-            return bad(
-                "trees_per_update",
-                format!(
-                    "must be at least 1 and at most n_trees ({}), got {}",
-                    self.n_trees, self.trees_per_update
-                ),
-            );
+        if self.trees_per_update < 1 {
+            return bad("trees_per_update", format!("must be at least 1, got {}", self.trees_per_update));
         }
         if self.parallel_node_size < 1 {
             return bad("parallel_node_size", format!("must be at least 1, got {}", self.parallel_node_size));
