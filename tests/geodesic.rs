@@ -270,3 +270,44 @@ fn tosca_wolf_heat_agrees_with_fast_marching() {
         assert!(fmm.iter().zip(&dij).all(|(f, d)| *f <= d + 1e-9), "fast marching exceeds Dijkstra");
     }
 }
+
+/// A 61×61 unit-square grid with interior vertices jittered by up to ±0.35 h (seeded), which
+/// creates obtuse triangles: the case where fast marching falls back to edge updates.
+fn jittered_grid() -> Mesh {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let mut grid = grid_plane(GRID_N, GRID_N, 1.0, 1.0);
+    let h = 1.0 / (GRID_N - 1) as f64;
+    for (v, p) in grid.vertices.iter_mut().enumerate() {
+        let (i, j) = (v % GRID_N, v / GRID_N);
+        if i == 0 || j == 0 || i == GRID_N - 1 || j == GRID_N - 1 || v == GRID_CENTRE {
+            continue;
+        }
+        p[0] += rng.random_range(-0.35..0.35) * h;
+        p[1] += rng.random_range(-0.35..0.35) * h;
+    }
+    grid
+}
+
+#[test]
+fn jittered_flat_grid_with_obtuse_triangles() {
+    let grid = jittered_grid();
+    let fmm = fast_marching_distances(&grid, &[GRID_CENTRE]).unwrap();
+    let err_fmm = max_rel_error_plane(&grid, GRID_CENTRE, &fmm, 0.1);
+    let heat =
+        HeatMethodSolver::new(&grid, HeatParams::default()).unwrap().distances_from(GRID_CENTRE).unwrap();
+    let err_heat = max_rel_error_plane(&grid, GRID_CENTRE, &heat, 0.1);
+    let dij = dijkstra_distances(&grid, &[GRID_CENTRE]).unwrap();
+    let err_dij = max_rel_error_plane(&grid, GRID_CENTRE, &dij, 0.1);
+    eprintln!("jittered grid: max relative error beyond r = 0.1: fmm {err_fmm:.4}, heat {err_heat:.4}, dijkstra {err_dij:.4}");
+    let p = grid.vertices[GRID_CENTRE];
+    let far: Vec<usize> = (0..grid.n_vertices()).filter(|&v| dist3(p, grid.vertices[v]) > 0.1).collect();
+    let mean_fmm = far.iter().map(|&v| (fmm[v] / dist3(p, grid.vertices[v]) - 1.0).abs()).sum::<f64>()
+        / far.len() as f64;
+    eprintln!("jittered grid: fast marching mean relative error beyond r = 0.1: {mean_fmm:.4}");
+    // measured: max 3.1 % at isolated vertices (6.7 % before obtuse corners were unfolded), mean 1e-4
+    assert!(err_fmm < 0.04, "fast marching {err_fmm}");
+    assert!(mean_fmm < 1e-3, "fast marching mean {mean_fmm}");
+    assert!(err_heat < 0.05, "heat {err_heat}");
+    assert!(err_fmm < err_dij);
+}
