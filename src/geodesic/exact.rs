@@ -84,8 +84,18 @@ pub(crate) fn dijkstra_min_update(graph: &EdgeGraph, dist: &mut [f64], source: u
     dijkstra_relax(graph, dist, &mut heap);
 }
 
-/// Cached topology for fast marching: incident faces of every vertex (CSR).
-pub(crate) struct FastMarching<'a> {
+/// First-order fast marching with its per-mesh precomputation cached (incident faces of every
+/// vertex, the unfolded vertex of every obtuse corner): build once, query many sources. See
+/// [`fast_marching_distances`] for the method.
+///
+/// ```
+/// use shapeforest::geodesic::FastMarchingSolver;
+/// let grid = shapeforest::synth::grid_plane(11, 11, 1.0, 1.0);
+/// let solver = FastMarchingSolver::new(&grid);
+/// let d = solver.distances_from(&[0]).unwrap();
+/// assert!((d[120] - 2f64.sqrt()).abs() < 1e-9);
+/// ```
+pub struct FastMarchingSolver<'a> {
     mesh: &'a Mesh,
     offsets: Vec<usize>,
     faces: Vec<usize>,
@@ -97,6 +107,30 @@ pub(crate) struct FastMarching<'a> {
     virtual_corners: Vec<usize>,
 }
 
+/// The face across each face edge: entry `3·f + c` is the face sharing edge
+/// `(f[c], f[c + 1])` with `f`, or `usize::MAX` on the boundary (on non-manifold edges, the
+/// faces are paired arbitrarily but deterministically).
+fn face_neighbours(mesh: &Mesh) -> Vec<usize> {
+    let mut half: Vec<(usize, usize, usize)> = Vec::with_capacity(mesh.n_faces() * 3);
+    for (fi, f) in mesh.faces.iter().enumerate() {
+        for c in 0..3 {
+            let (a, b) = (f[c], f[(c + 1) % 3]);
+            half.push((a.min(b), a.max(b), 3 * fi + c));
+        }
+    }
+    half.sort_unstable();
+    let mut out = vec![usize::MAX; mesh.n_faces() * 3];
+    for w in half.chunk_by(|x, y| x.0 == y.0 && x.1 == y.1) {
+        for pair in w.chunks(2) {
+            if let [x, y] = pair {
+                out[x.2] = y.2 / 3;
+                out[y.2] = x.2 / 3;
+            }
+        }
+    }
+    out
+}
+
 /// Unfolding steps tried per obtuse corner before giving up (then edge updates are used).
 const MAX_UNFOLD_STEPS: usize = 12;
 
@@ -105,7 +139,7 @@ const MAX_UNFOLD_STEPS: usize = 12;
 /// angular sector. Returns that vertex and its unfolded 3D position (in the corner's plane).
 fn unfold_obtuse_corner(
     mesh: &Mesh,
-    edge_faces: &std::collections::HashMap<(usize, usize), [usize; 2]>,
+    neighbours: &[usize],
     face: usize,
     corner: usize,
 ) -> Option<(usize, [f64; 3])> {
@@ -133,10 +167,13 @@ fn unfold_obtuse_corner(
     // the strip: current edge (p, q) with unfolded positions, and the face we came from
     let (mut p, mut p2, mut q, mut q2, mut from) = (ai, a2, bi, b2, face);
     for _ in 0..MAX_UNFOLD_STEPS {
-        let key = (p.min(q), p.max(q));
-        let adj = edge_faces.get(&key)?;
-        let next = if adj[0] == from { adj[1] } else { adj[0] };
-        if next == usize::MAX || next == from {
+        let ff = mesh.faces[from];
+        let local = (0..3).find(|&c| {
+            let (a, b) = (ff[c], ff[(c + 1) % 3]);
+            (a == p && b == q) || (a == q && b == p)
+        })?;
+        let next = neighbours[3 * from + local];
+        if next == usize::MAX {
             return None; // boundary edge
         }
         let nf = mesh.faces[next];
@@ -179,8 +216,9 @@ fn unfold_obtuse_corner(
     None
 }
 
-impl<'a> FastMarching<'a> {
-    pub(crate) fn new(mesh: &'a Mesh) -> Self {
+impl<'a> FastMarchingSolver<'a> {
+    /// Precomputes the adjacency and the obtuse-corner unfoldings of `mesh`.
+    pub fn new(mesh: &'a Mesh) -> Self {
         let n = mesh.n_vertices();
         let mut offsets = vec![0usize; n + 1];
         for f in &mesh.faces {
@@ -199,22 +237,9 @@ impl<'a> FastMarching<'a> {
                 fill[v] += 1;
             }
         }
-        // edge -> its (up to) two faces; non-manifold edges keep the first two
-        let mut edge_faces: std::collections::HashMap<(usize, usize), [usize; 2]> =
-            std::collections::HashMap::with_capacity(mesh.n_faces() * 3 / 2 + 1);
-        for (fi, f) in mesh.faces.iter().enumerate() {
-            for c in 0..3 {
-                let (a, b) = (f[c], f[(c + 1) % 3]);
-                let e = edge_faces.entry((a.min(b), a.max(b))).or_insert([usize::MAX; 2]);
-                if e[0] == usize::MAX {
-                    e[0] = fi;
-                } else if e[1] == usize::MAX {
-                    e[1] = fi;
-                }
-            }
-        }
+        let neighbours = face_neighbours(mesh);
         let virtual_vertex: Vec<Option<(usize, [f64; 3])>> =
-            (0..mesh.n_faces() * 3).map(|k| unfold_obtuse_corner(mesh, &edge_faces, k / 3, k % 3)).collect();
+            (0..mesh.n_faces() * 3).map(|k| unfold_obtuse_corner(mesh, &neighbours, k / 3, k % 3)).collect();
         let mut virtual_offsets = vec![0usize; n + 1];
         for (d, _) in virtual_vertex.iter().flatten() {
             virtual_offsets[d + 1] += 1;
@@ -240,6 +265,13 @@ impl<'a> FastMarching<'a> {
             dist[c] = t;
             heap.push(Entry { dist: t, vertex: c });
         }
+    }
+
+    /// Distance from the nearest of `sources` to every vertex (`f64::INFINITY` where the surface
+    /// does not connect).
+    pub fn distances_from(&self, sources: &[usize]) -> Result<Vec<f64>, GeodesicError> {
+        check_sources(sources, self.mesh.n_vertices())?;
+        Ok(self.run(sources))
     }
 
     /// Distances from the nearest source (sources already validated).
@@ -329,7 +361,7 @@ impl<'a> FastMarching<'a> {
 /// ```
 pub fn fast_marching_distances(mesh: &Mesh, sources: &[usize]) -> Result<Vec<f64>, GeodesicError> {
     check_sources(sources, mesh.n_vertices())?;
-    Ok(FastMarching::new(mesh).run(sources))
+    Ok(FastMarchingSolver::new(mesh).run(sources))
 }
 
 /// The two-neighbour update described in [`fast_marching_distances`]: `None` when the

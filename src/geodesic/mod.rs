@@ -5,8 +5,9 @@
 //!   solved as one block. This is the fast, smooth distance used by the regulariser.
 //! - [`fast_marching_distances`]: first-order fast marching on the triangles with a
 //!   virtual-point-source two-neighbour update (exact for a point source in a flat region),
-//!   falling back to edge updates where the update is not causal. The accurate reference for
-//!   evaluation.
+//!   obtuse corners split by unfolding (Kimmel–Sethian), edge updates where no causal update
+//!   exists. The accurate reference for evaluation; [`FastMarchingSolver`] caches the per-mesh
+//!   precomputation for many queries.
 //! - [`dijkstra_distances`]: shortest paths along edges, an upper bound.
 //! - [`farthest_point_sampling_euclidean`], [`farthest_point_sampling_geodesic`]:
 //!   deterministic greedy farthest point sampling.
@@ -49,7 +50,7 @@ mod fps;
 mod heat;
 mod topology;
 
-pub use exact::{dijkstra_distances, fast_marching_distances};
+pub use exact::{dijkstra_distances, fast_marching_distances, FastMarchingSolver};
 pub use fps::{
     farthest_from_centroid, farthest_point_sampling_euclidean, farthest_point_sampling_geodesic,
     SamplingMetric,
