@@ -29,6 +29,8 @@
 //! | unit square, `grid_plane(61, 61, 1.0, 1.0)`, centre source | heat, t = h², `Average` | | | 3.1 % |
 //! | same | heat, `Neumann` | | | 3.1 % |
 //! | same | heat, `Dirichlet` | | | 5.7 % |
+//! | same grid, source mid-way along one side | heat, `Average` / `Neumann` | | | 3.3 % |
+//! | same | heat, `Dirichlet` | | | 34 % |
 //! | same | fast marching | | | 5e-16 (exact in the plane) |
 //! | same | Dijkstra | | | 8.2 % |
 //! | same grid, interior vertices jittered ±0.35 h (obtuse triangles) | fast marching | | | 3.1 % (mean 0.01 %) |
