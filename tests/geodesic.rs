@@ -335,3 +335,16 @@ fn heat_method_with_a_source_on_the_boundary() {
         assert!(err < 0.05, "{boundary:?}: {err}");
     }
 }
+
+#[test]
+fn unreferenced_vertex_is_unreachable_and_never_sampled() {
+    let mut sphere = icosphere(2, 1.0);
+    sphere.vertices.push([3.0, 3.0, 3.0]); // touches no face
+    let sphere = Mesh::new(sphere.vertices, sphere.faces).unwrap();
+    let lonely = sphere.n_vertices() - 1;
+    let heat = HeatMethodSolver::new(&sphere, HeatParams::default()).unwrap().distances_from(0).unwrap();
+    assert!(heat[lonely].is_infinite());
+    assert!(heat[..lonely].iter().all(|x| x.is_finite()));
+    let s = farthest_point_sampling_geodesic(&sphere, 20, Some(0), SamplingMetric::Dijkstra).unwrap();
+    assert!(!s.contains(&lonely));
+}

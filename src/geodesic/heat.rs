@@ -429,11 +429,12 @@ impl HeatMethodSolver {
                 if !(m > 0.0) || !m.is_finite() {
                     continue;
                 }
-                let g = [g[0] / m, g[1] / m, g[2] / m];
-                let len = norm(g);
-                // X = −∇u/|∇u|; rhs = −div X, so rhs_i += w_i · ∇u/|∇u|
+                // X = −∇u/|∇u|; rhs = −div X, so rhs_i += w_i · ∇u/|∇u| (scaled by 1/m first so
+                // that tiny far-field gradients do not underflow when squared)
+                let inv_m = 1.0 / m;
+                let k = inv_m / norm([g[0] * inv_m, g[1] * inv_m, g[2] * inv_m]);
                 for (&v, w) in f.iter().zip(&op.divergence_weight) {
-                    rhs[v] += dot(*w, g) / len;
+                    rhs[v] += dot(*w, g) * k;
                 }
             }
         });

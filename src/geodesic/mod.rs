@@ -40,6 +40,18 @@
 //! On TOSCA `wolf0` (4,344 vertices) heat and fast marching differ by 0.9–1.4 % of `√area` on
 //! average (max 2.6–6.5 %) over four sources.
 //!
+//! potpourri3d's `MeshHeatMethodDistanceSolver(V, F, t_coef=1.0)` on the same icosphere:
+//! mean 8.9e-3, max 1.9e-2 (`use_robust=True`).
+//!
+//! # Speed
+//!
+//! `benches/geodesic.rs`, tori of 5,000 / 20,000 / 49,928 vertices, release, on a shared 2-core
+//! machine under heavy load (absolute times noisy; ratios from back-to-back runs): setup
+//! 48 / 233 / 800 ms and 50 sources as one block 62 / 365 / 948 ms, against potpourri3d's
+//! setup 103 / 414 / 1726 ms and 50 `compute_distance` calls 286 / 881 / 2612 ms, i.e. about
+//! 2× faster setup and 2.4–4.6× faster queries. Solving the 50 sources one at a time costs
+//! 1.7–2.5× more than one block.
+//!
 //! Sphere errors are against the great-circle distance `acos(p·q)` from vertex 0; grid errors are
 //! the maximum relative error against the Euclidean distance over vertices farther than 0.1
 //! from the source.
