@@ -64,15 +64,9 @@ pub const MAX_TARGET_VERTICES: usize = 1_000_000;
 
 /// Blend radius of the smooth union of the body parts.
 const BLEND: f64 = 0.12;
-/// Relaxation rounds (each: one flip sweep and three smoothing steps): more on coarse meshes,
-/// where they are cheap and most needed.
-fn relax_rounds(target_vertices: usize) -> usize {
-    if target_vertices <= 10_000 {
-        6
-    } else {
-        6
-    }
-}
+/// Relaxation rounds (each: one flip sweep and three smoothing steps). More rounds do not
+/// help: on coarse meshes they let the projection pinch vertices together at thin tips.
+const RELAX_ROUNDS: usize = 6;
 /// Skinning blend length.
 const SKIN_TAU: f64 = 0.1;
 
@@ -191,7 +185,7 @@ fn skeleton() -> Vec<Bone> {
             name: PART_NAMES[3],
             parent: Some(0),
             joint: [0.0, 0.1, -0.9],
-            cone: cone([0.0, 0.1, -0.9], 0.15, [0.0, 0.32, -1.4], 0.12),
+            cone: cone([0.0, 0.1, -0.9], 0.15, [0.0, 0.32, -1.4], 0.13),
             limits: [0.4, 0.5, 0.0],
             mirror: 3,
         },
@@ -199,7 +193,7 @@ fn skeleton() -> Vec<Bone> {
             name: PART_NAMES[4],
             parent: Some(3),
             joint: [0.0, 0.32, -1.4],
-            cone: cone([0.0, 0.32, -1.4], 0.12, [0.0, 0.38, -1.9], 0.1),
+            cone: cone([0.0, 0.32, -1.4], 0.13, [0.0, 0.38, -1.9], 0.115),
             limits: [0.5, 0.5, 0.0],
             mirror: 4,
         },
@@ -301,8 +295,7 @@ pub fn creature_template(params: &CreatureParams) -> Result<Creature, SynthError
     }
     let body = BodySdf::new(&bones);
     let sdf = |p: [f64; 3]| body.distance(p);
-    let surface =
-        polygonise_symmetric(&sdf, lo, hi, params.target_vertices, relax_rounds(params.target_vertices))?;
+    let surface = polygonise_symmetric(&sdf, lo, hi, params.target_vertices, RELAX_ROUNDS)?;
     let skin = skin_weights(&bones, &surface.vertices, SKIN_TAU);
     let vertex_part = skin.weights.iter().map(|w| w[0].0 as usize).collect();
     let mesh = Mesh::new(surface.vertices, surface.faces)?;
@@ -338,9 +331,9 @@ impl Creature {
         let n = self.bones.len();
         let mut angles = vec![[0.0; 3]; n];
         for (b, bone) in self.bones.iter().enumerate() {
-            for a in 0..3 {
+            for (angle, limit) in angles[b].iter_mut().zip(bone.limits) {
                 let u: f64 = rng.random_range(-1.0..=1.0);
-                angles[b][a] = pose_amplitude * bone.limits[a] * u;
+                *angle = pose_amplitude * limit * u;
             }
         }
         let mut axial = vec![1.0; n];

@@ -482,8 +482,8 @@ fn delaunay_flips(vertices: &[[f64; 3]], faces: &mut [[usize; 3]]) {
     let has = |f: [usize; 3], a: usize, b: usize| (0..3).any(|e| f[e] == a && f[(e + 1) % 3] == b);
     for _sweep in 0..2 {
         let mut flipped = 0;
-        for i in 0..edges.len() {
-            let (a, b, mut f1, mut f2) = edges[i];
+        for edge in edges.iter_mut() {
+            let (a, b, mut f1, mut f2) = *edge;
             if !has(faces[f1], a, b) || !has(faces[f2], b, a) {
                 // A neighbouring flip moved this edge to other faces.
                 let Some(&[g1, g2]) = edge_faces.get(&(a, b)) else { continue };
@@ -538,7 +538,7 @@ fn delaunay_flips(vertices: &[[f64; 3]], faces: &mut [[usize; 3]]) {
             valence[b] -= 1;
             valence[c] += 1;
             valence[d] += 1;
-            edges[i] = if c < d { (c, d, f2, f1) } else { (d, c, f1, f2) };
+            *edge = if c < d { (c, d, f2, f1) } else { (d, c, f1, f2) };
             flipped += 1;
         }
         if flipped == 0 {
