@@ -263,17 +263,31 @@ fn report_sizes_and_times() {
         let t = std::time::Instant::now();
         let c = creature_template(&params(target)).expect("template");
         let dt = t.elapsed().as_secs_f64();
-        let t2 = std::time::Instant::now();
-        let fam_shape = c.random_shape(0, 1, 1.0, 0.0).expect("pose");
-        let dt2 = t2.elapsed().as_secs_f64();
         let edges = assert_closed_oriented(&c.mesh);
-        let (mean, max) = edge_distortion(&c.mesh, &fam_shape, &edges);
+        let t2 = std::time::Instant::now();
+        let poses: Vec<Mesh> = (1..=5).map(|k| c.random_shape(0, k, 1.0, 0.0).expect("pose")).collect();
+        let dt2 = t2.elapsed().as_secs_f64() / 5.0;
+        let (mut mean, mut max) = (0.0, 0.0f64);
+        let mut all: Vec<f64> = Vec::new();
+        for pose in &poses {
+            let (m, x) = edge_distortion(&c.mesh, pose, &edges);
+            mean += m / 5.0;
+            max = max.max(x);
+            all.extend(edges.iter().map(|&(i, j)| {
+                let la = len(sub(c.mesh.vertices[i], c.mesh.vertices[j]));
+                (len(sub(pose.vertices[i], pose.vertices[j])) - la).abs() / la
+            }));
+        }
+        all.sort_by(f64::total_cmp);
+        let p99 = all[all.len() * 99 / 100];
         println!(
-            "target {target}: {} vertices, {} faces, template {dt:.3} s, pose {dt2:.4} s, min angle {:.1}°, pose edge change mean {:.2}% max {:.1}%",
+            "target {target}: {} vertices, {} faces, template {dt:.3} s, pose {dt2:.4} s, min angle {:.1}°, \
+             5 poses: edge change mean {:.2}% p99 {:.1}% max {:.1}%",
             c.mesh.n_vertices(),
             c.mesh.n_faces(),
             min_angle_deg(&c.mesh),
             100.0 * mean,
+            100.0 * p99,
             100.0 * max
         );
     }
