@@ -292,3 +292,29 @@ fn report_sizes_and_times() {
         );
     }
 }
+
+/// The point of near-isometric poses: the Laplace spectrum (what WKS is built from) barely
+/// moves under a pose, but moves clearly under the non-isometric variant.
+#[test]
+fn low_spectrum_is_stable_under_poses_not_under_rescaling() {
+    use shapeforest::spectral::dense_spectrum;
+    let p = params(1000);
+    let creature = creature_template(&p).expect("template");
+    let pose = creature.random_shape(5, 1, 1.0, 0.0).expect("pose");
+    let fat = creature.random_shape(5, 1, 0.0, 0.3).expect("non-isometric");
+    let k = 9;
+    let s0 = dense_spectrum(&creature.mesh, k).expect("spectrum");
+    let s1 = dense_spectrum(&pose, k).expect("spectrum");
+    let s2 = dense_spectrum(&fat, k).expect("spectrum");
+    assert!(s0.eigenvalues[0].abs() < 1e-8 && s0.eigenvalues[1] > 1e-3, "one connected component");
+    let rel = |a: &[f64], b: &[f64]| (1..k).map(|i| (a[i] - b[i]).abs() / a[i]).sum::<f64>() / (k - 1) as f64;
+    let d_pose = rel(&s0.eigenvalues, &s1.eigenvalues);
+    let d_fat = rel(&s0.eigenvalues, &s2.eigenvalues);
+    println!(
+        "mean relative change of λ1..λ8: pose {:.2}%, non-isometric {:.2}%",
+        100.0 * d_pose,
+        100.0 * d_fat
+    );
+    assert!(d_pose < 0.05, "pose changed the spectrum by {d_pose}");
+    assert!(d_fat > 2.0 * d_pose, "non-isometric change {d_fat} not larger than pose change {d_pose}");
+}
