@@ -21,6 +21,9 @@ pub enum Error {
     /// Training, predicting with, or storing a random forest failed.
     #[error(transparent)]
     Forest(#[from] crate::forest::ForestError),
+    /// Generating a synthetic shape failed.
+    #[error(transparent)]
+    Synth(#[from] crate::synth::SynthError),
 }
 
 /// Result alias using the crate [`enum@Error`].
