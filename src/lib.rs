@@ -16,6 +16,7 @@
 //! | [`forest`] | random forest over parametric WKS: training, prediction, model files |
 //! | [`matching`] | game-theoretic sparse matching (replicator dynamics) |
 //! | [`fmap`] | functional maps: soft map in Laplace bases, regularised solve, point-to-point, ZoomOut |
+//! | [`eval`] | geodesic error of maps, cumulative curves, CSV and SVG reports |
 //! | [`synth`] | deterministic synthetic shape families with known correspondence and test primitives |
 //!
 //! Conventions used throughout:
@@ -26,6 +27,7 @@
 
 pub mod descriptor;
 pub mod error;
+pub mod eval;
 pub mod fmap;
 pub mod forest;
 pub mod geodesic;
