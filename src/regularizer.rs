@@ -1,0 +1,308 @@
+//! The spatial regulariser of Rodolà et al. (§5 of the method): it turns the forest's fuzzy,
+//! symmetry-confused posterior into a consistent dense point-to-point map.
+//!
+//! 1. `n_samples` (default 50) Euclidean farthest-point samples on the test shape;
+//! 2. candidate matches: each sample with its `top_k` most probable reference points;
+//! 3. geodesic distances among the samples (test) and among the candidate points (reference),
+//!    by the heat method, normalised by √area;
+//! 4. game-theoretic matching picks a sparse, geodesically consistent subset with weights ω;
+//! 5. the regularised functional map (eq. 11.19) with the distance maps of the matched pairs;
+//! 6. conversion to a point-to-point map (nearest neighbour in the spectral embedding), and an
+//!    optional ZoomOut refinement, off by default and reported separately.
+//!
+//! Shapes are prepared once ([`PreparedShape`]: mesh, spectrum, heat-method factorisation), so a
+//! reference serves many test shapes.
+
+use std::{sync::Arc, time::Instant};
+
+use faer::Mat;
+use serde::{Deserialize, Serialize};
+
+use crate::{
+    fmap::{self, FmapParams, SoftCorrespondence},
+    forest::Prediction,
+    geodesic::{farthest_point_sampling_euclidean, HeatMethodSolver, HeatParams},
+    matching::{game_theoretic_matching, Candidate, GameMatcherParams},
+    mesh::Mesh,
+    spectral::Spectrum,
+    Error,
+};
+
+/// A shape ready for regularisation: mesh, spectrum and a heat-method factorisation.
+pub struct PreparedShape {
+    /// The mesh.
+    pub mesh: Arc<Mesh>,
+    /// Its unit-area spectrum.
+    pub spectrum: Arc<Spectrum>,
+    /// Heat-method geodesic solver (factorised once).
+    pub heat: HeatMethodSolver,
+}
+
+impl PreparedShape {
+    /// Prepares a shape: factorises the heat-method matrices.
+    pub fn new(mesh: Arc<Mesh>, spectrum: Arc<Spectrum>, heat: HeatParams) -> Result<Self, Error> {
+        if spectrum.n_vertices != mesh.n_vertices() {
+            return Err(fmap::FmapError::SizeMismatch(format!(
+                "spectrum of {} vertices for a mesh of {}",
+                spectrum.n_vertices,
+                mesh.n_vertices()
+            ))
+            .into());
+        }
+        let heat = HeatMethodSolver::new(&mesh, heat)?;
+        Ok(Self { mesh, spectrum, heat })
+    }
+
+    /// `√area` of the mesh, the unit of normalised distances.
+    pub fn sqrt_area(&self) -> f64 {
+        self.spectrum.area.sqrt()
+    }
+}
+
+/// ZoomOut refinement settings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ZoomOutParams {
+    /// Final basis size.
+    pub k_final: usize,
+    /// Basis functions added per iteration.
+    pub step: usize,
+}
+
+/// Parameters of the regulariser.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegularizerParams {
+    /// Farthest-point samples on the test shape. Default 50 (the paper's choice).
+    pub n_samples: usize,
+    /// Candidate reference points per sample (most probable labels). Default 5.
+    pub top_k: usize,
+    /// Game-theoretic matcher settings.
+    pub matcher: GameMatcherParams,
+    /// Functional-map solve settings.
+    pub fmap: FmapParams,
+    /// Heat-method settings for the distance maps.
+    pub heat: HeatParams,
+    /// Optional ZoomOut refinement after the solve. Default off.
+    pub zoomout: Option<ZoomOutParams>,
+}
+
+impl Default for RegularizerParams {
+    fn default() -> Self {
+        Self {
+            n_samples: 50,
+            top_k: 5,
+            matcher: GameMatcherParams::default(),
+            fmap: FmapParams::default(),
+            heat: HeatParams::default(),
+            zoomout: None,
+        }
+    }
+}
+
+/// A matched pair of vertices with its confidence.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VertexMatch {
+    /// Vertex of the test shape.
+    pub test: usize,
+    /// Vertex of the reference shape.
+    pub reference: usize,
+    /// Confidence in (0, 1].
+    pub weight: f64,
+}
+
+/// Seconds spent in each stage of the regulariser.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RegularizerTimings {
+    /// Farthest point sampling and candidate selection.
+    pub sampling_s: f64,
+    /// Heat-method distance maps on both shapes.
+    pub distances_s: f64,
+    /// Game-theoretic matching.
+    pub matching_s: f64,
+    /// Functional-map assembly and solve.
+    pub fmap_s: f64,
+    /// Point-to-point conversion.
+    pub point_map_s: f64,
+    /// ZoomOut refinement (0 when off).
+    pub zoomout_s: f64,
+}
+
+/// The result of regularising one prediction.
+pub struct DenseMap {
+    /// Test vertex → reference vertex, from the regularised functional map.
+    pub map: Vec<usize>,
+    /// The ZoomOut-refined map, when refinement was asked for.
+    pub refined_map: Option<Vec<usize>>,
+    /// The forest's own maximum-a-posteriori map (test vertex → reference vertex), for
+    /// comparison; `None` where the forest gave no label.
+    pub forest_map: Vec<Option<usize>>,
+    /// The functional map of the raw prediction (`k_test × k_ref`).
+    pub fmap_predicted: Mat<f64>,
+    /// The regularised functional map.
+    pub fmap: Mat<f64>,
+    /// The sparse consistent matches chosen by the game.
+    pub matches: Vec<VertexMatch>,
+    /// Time per stage.
+    pub timings: RegularizerTimings,
+}
+
+/// A forest prediction read through a label → reference-vertex table.
+struct LabelledPosterior<'a> {
+    prediction: &'a Prediction,
+    label_to_vertex: Option<&'a [usize]>,
+}
+
+impl LabelledPosterior<'_> {
+    fn vertex(&self, label: u32) -> usize {
+        match self.label_to_vertex {
+            Some(t) => t[label as usize],
+            None => label as usize,
+        }
+    }
+}
+
+impl SoftCorrespondence for LabelledPosterior<'_> {
+    fn n_test_vertices(&self) -> usize {
+        self.prediction.n_vertices()
+    }
+    fn for_each_entry(&self, m: usize, f: &mut dyn FnMut(usize, f64)) {
+        let (labels, probs) = self.prediction.posterior(m);
+        for (&l, &p) in labels.iter().zip(probs) {
+            f(self.vertex(l), p as f64);
+        }
+    }
+}
+
+/// Symmetrised, normalised distance matrix among `points` from their fields (`n × points`).
+fn pairwise(fields: &Mat<f64>, points: &[usize], scale: f64) -> Vec<f64> {
+    let s = points.len();
+    let mut d = vec![0.0; s * s];
+    for i in 0..s {
+        for j in 0..s {
+            d[i * s + j] = 0.5 * (fields[(points[j], i)] + fields[(points[i], j)]) / scale;
+        }
+    }
+    d
+}
+
+/// Regularises a forest prediction for `test` against `reference`.
+///
+/// `label_to_vertex` maps forest labels to reference vertices (`None`: label = vertex index).
+pub fn regularize(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    prediction: &Prediction,
+    label_to_vertex: Option<&[usize]>,
+    params: &RegularizerParams,
+) -> Result<DenseMap, Error> {
+    params.matcher.check()?;
+    params.fmap.check()?;
+    let n_ref = reference.mesh.n_vertices();
+    if prediction.n_vertices() != test.mesh.n_vertices() {
+        return Err(fmap::FmapError::SizeMismatch(format!(
+            "prediction for {} vertices, test shape has {}",
+            prediction.n_vertices(),
+            test.mesh.n_vertices()
+        ))
+        .into());
+    }
+    match label_to_vertex {
+        Some(t) if t.len() != prediction.n_labels() || t.iter().any(|&v| v >= n_ref) => {
+            return Err(fmap::FmapError::SizeMismatch(format!(
+                "label table of {} entries for {} labels and a reference of {n_ref} vertices",
+                t.len(),
+                prediction.n_labels()
+            ))
+            .into());
+        }
+        None if prediction.n_labels() > n_ref => {
+            return Err(fmap::FmapError::SizeMismatch(format!(
+                "{} labels but the reference has only {n_ref} vertices: give a label → vertex table",
+                prediction.n_labels()
+            ))
+            .into());
+        }
+        _ => {}
+    }
+    let posterior = LabelledPosterior { prediction, label_to_vertex };
+    let mut timings = RegularizerTimings::default();
+
+    // 1–2. Samples and candidates.
+    let t0 = Instant::now();
+    let n_samples = params.n_samples.min(test.mesh.n_vertices());
+    let samples = farthest_point_sampling_euclidean(&test.mesh, n_samples, None)?;
+    let mut ref_points: Vec<usize> = Vec::new();
+    let mut ref_index = std::collections::HashMap::new();
+    let mut candidates = Vec::new();
+    for (i, &m) in samples.iter().enumerate() {
+        for (label, p) in prediction.top_k(m, params.top_k) {
+            let r = posterior.vertex(label);
+            let idx = *ref_index.entry(r).or_insert_with(|| {
+                ref_points.push(r);
+                ref_points.len() - 1
+            });
+            candidates.push(Candidate { test: i, reference: idx, prior: p as f64 });
+        }
+    }
+    timings.sampling_s = t0.elapsed().as_secs_f64();
+
+    // 3. Distances.
+    let t0 = Instant::now();
+    let test_fields = test.heat.distances_from_many(&samples)?;
+    let ref_fields = reference.heat.distances_from_many(&ref_points)?;
+    let d_test = pairwise(&test_fields, &samples, test.sqrt_area());
+    let d_ref = pairwise(&ref_fields, &ref_points, reference.sqrt_area());
+    timings.distances_s = t0.elapsed().as_secs_f64();
+
+    // 4. Game.
+    let t0 = Instant::now();
+    let game =
+        game_theoretic_matching(&candidates, &d_test, samples.len(), &d_ref, ref_points.len(), &params.matcher)?;
+    timings.matching_s = t0.elapsed().as_secs_f64();
+
+    // 5. Functional maps.
+    let t0 = Instant::now();
+    let (kt, kr) = (params.fmap.k_test.min(test.spectrum.k()), params.fmap.k_ref.min(reference.spectrum.k()));
+    let fmap_predicted = fmap::pullback_fmap(&test.spectrum, &reference.spectrum, kt, kr, &posterior)?;
+    let s = game.matches.len();
+    let a_fields = Mat::from_fn(test.mesh.n_vertices(), s, |v, j| {
+        test_fields[(v, game.matches[j].test)] / test.sqrt_area()
+    });
+    let b_fields = Mat::from_fn(n_ref, s, |v, j| ref_fields[(v, game.matches[j].reference)] / reference.sqrt_area());
+    let a = fmap::spectral_coefficients(&test.spectrum, kt, a_fields.as_ref())?;
+    let b = fmap::spectral_coefficients(&reference.spectrum, kr, b_fields.as_ref())?;
+    let weights: Vec<f64> = game.matches.iter().map(|m| m.weight).collect();
+    let fmap_params = FmapParams { k_test: kt, k_ref: kr, ..params.fmap.clone() };
+    let c = fmap::solve_regularised_fmap(
+        fmap_predicted.as_ref(),
+        a.as_ref(),
+        b.as_ref(),
+        &weights,
+        &test.spectrum.eigenvalues,
+        &reference.spectrum.eigenvalues,
+        &fmap_params,
+    )?;
+    timings.fmap_s = t0.elapsed().as_secs_f64();
+
+    // 6. Point map, and optional refinement.
+    let t0 = Instant::now();
+    let map = fmap::point_to_point(&test.spectrum, &reference.spectrum, c.as_ref())?;
+    timings.point_map_s = t0.elapsed().as_secs_f64();
+    let refined_map = match params.zoomout {
+        Some(z) if kt == kr => {
+            let t0 = Instant::now();
+            let k_final = z.k_final.min(test.spectrum.k()).min(reference.spectrum.k());
+            let (_, refined) = fmap::zoomout(&test.spectrum, &reference.spectrum, c.as_ref(), k_final, z.step)?;
+            timings.zoomout_s = t0.elapsed().as_secs_f64();
+            Some(refined)
+        }
+        _ => None,
+    };
+
+    let forest_map = prediction.map_labels().into_iter().map(|l| l.map(|l| posterior.vertex(l))).collect();
+    let matches = game
+        .matches
+        .iter()
+        .map(|m| VertexMatch { test: samples[m.test], reference: ref_points[m.reference], weight: m.weight })
+        .collect();
+    Ok(DenseMap { map, refined_map, forest_map, fmap_predicted, fmap: c, matches, timings })
+}
