@@ -1,0 +1,315 @@
+//! The fitted [`RandomForest`]: training, incremental growth and prediction.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::params::{RandomForestParams, RandomForestValidParams};
+use super::prediction::Prediction;
+use super::training::TrainingSet;
+use super::tree::{grow_tree, TrainData, Tree};
+use super::ForestError;
+use crate::descriptor::{first_nonzero_eigenvalue, EnergyGrid, ParametricWks, WksParams};
+use crate::spectral::Spectrum;
+
+/// A random forest mapping vertices to labels from the parametric WKS of their shape.
+///
+/// Immutable once fitted: an incremental update ([`RandomForestValidParams::fit_with`]) returns a
+/// new forest, so a server can keep answering with the old one (behind an `Arc`) and swap.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RandomForest {
+    pub(crate) params: RandomForestParams,
+    pub(crate) n_labels: usize,
+    pub(crate) k: usize,
+    pub(crate) grid: EnergyGrid,
+    pub(crate) trees: Vec<Tree>,
+    pub(crate) next_tree_index: u64,
+}
+
+impl RandomForest {
+    /// Default hyper-parameters, to be adjusted with the chained setters.
+    pub fn params() -> RandomForestParams {
+        RandomForestParams::default()
+    }
+
+    /// The hyper-parameters this forest was (last) grown with.
+    pub fn hyper_params(&self) -> &RandomForestParams {
+        &self.params
+    }
+
+    /// Size of the label set.
+    pub fn n_labels(&self) -> usize {
+        self.n_labels
+    }
+
+    /// Number of eigenpairs `K` the splits use; a shape to predict needs at least this many.
+    pub fn k(&self) -> usize {
+        self.k
+    }
+
+    /// The log-energy grid (range and `σ`, from the training spectra) the splits draw `e` from.
+    pub fn energy_grid(&self) -> EnergyGrid {
+        self.grid
+    }
+
+    /// Number of trees.
+    pub fn n_trees(&self) -> usize {
+        self.trees.len()
+    }
+
+    /// Total number of nodes over all trees.
+    pub fn n_nodes(&self) -> usize {
+        self.trees.iter().map(|t| t.nodes.len()).sum()
+    }
+
+    /// Mean number of labels stored per leaf.
+    pub fn mean_leaf_support(&self) -> f64 {
+        let (l, n) =
+            self.trees.iter().fold((0usize, 0usize), |(l, n), t| (l + t.leaf_labels.len(), n + t.n_leaves()));
+        l as f64 / n.max(1) as f64
+    }
+
+    /// The forest posterior of every vertex of `spectrum` (a shape scaled to unit area, with at
+    /// least [`Self::k`] eigenpairs): the average of the leaf distributions reached in each tree,
+    /// as a sparse left-stochastic matrix (labels × vertices). Parallel over vertices.
+    pub fn predict(&self, spectrum: &Spectrum) -> Result<Prediction, ForestError> {
+        if spectrum.k() < self.k {
+            return Err(ForestError::SpectrumTooShort { needed: self.k, found: spectrum.k() });
+        }
+        let pw = ParametricWks::new(spectrum, self.k)?;
+        let table = pw.weight_table(&self.grid);
+        let n = pw.n_vertices();
+        let inv_trees = 1.0 / self.trees.len() as f64;
+        const CHUNK: usize = 512;
+        let chunks: Vec<(Vec<u32>, Vec<u32>, Vec<f32>)> = (0..n.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|ci| {
+                let (a, b) = (ci * CHUNK, ((ci + 1) * CHUNK).min(n));
+                let mut lens = Vec::with_capacity(b - a);
+                let mut labels = Vec::new();
+                let mut probs = Vec::new();
+                let mut buf: Vec<(u32, f32)> = Vec::new();
+                for v in a..b {
+                    let row = pw.row(v);
+                    buf.clear();
+                    for t in &self.trees {
+                        let (ls, ps) = t.leaf_distribution(t.leaf(&table, self.k, row));
+                        buf.extend(ls.iter().copied().zip(ps.iter().copied()));
+                    }
+                    buf.sort_unstable_by_key(|x| x.0);
+                    let start = labels.len();
+                    let mut total = 0.0f64;
+                    let mut i = 0;
+                    while i < buf.len() {
+                        let mut s = 0.0f64;
+                        let mut j = i;
+                        while j < buf.len() && buf[j].0 == buf[i].0 {
+                            s += buf[j].1 as f64;
+                            j += 1;
+                        }
+                        labels.push(buf[i].0);
+                        probs.push((s * inv_trees) as f32);
+                        total += s * inv_trees;
+                        i = j;
+                    }
+                    if total > 0.0 {
+                        for q in &mut probs[start..] {
+                            *q = (*q as f64 / total) as f32;
+                        }
+                    }
+                    lens.push((labels.len() - start) as u32);
+                }
+                (lens, labels, probs)
+            })
+            .collect();
+        Ok(Prediction::from_chunks(self.n_labels, chunks))
+    }
+
+    /// Checks the internal consistency of a forest (used after loading a model file): child
+    /// indices after their parent and in range, leaf indices and labels in range, `k̄ ≤ K`,
+    /// energies on the grid.
+    pub(crate) fn validate(&self) -> Result<(), String> {
+        if self.trees.is_empty() {
+            return Err("the forest has no trees".into());
+        }
+        if self.k < 2 || self.k > u16::MAX as usize {
+            return Err(format!("K = {} is out of range", self.k));
+        }
+        if self.grid.levels < 2
+            || !(self.grid.range.e_min.is_finite()
+                && self.grid.range.e_max.is_finite()
+                && self.grid.range.sigma.is_finite()
+                && self.grid.range.sigma > 0.0)
+        {
+            return Err("the energy grid is invalid".into());
+        }
+        for (ti, t) in self.trees.iter().enumerate() {
+            let nl = t.n_leaves();
+            if t.nodes.is_empty() || t.leaf_offsets.first() != Some(&0) {
+                return Err(format!("tree {ti} is empty"));
+            }
+            if t.leaf_offsets.windows(2).any(|w| w[0] > w[1])
+                || t.leaf_offsets.last().map(|&x| x as usize) != Some(t.leaf_labels.len())
+                || t.leaf_labels.len() != t.leaf_probs.len()
+            {
+                return Err(format!("tree {ti} has inconsistent leaf arrays"));
+            }
+            if t.leaf_labels.iter().any(|&l| l as usize >= self.n_labels)
+                || t.leaf_probs.iter().any(|p| !p.is_finite() || *p < 0.0)
+            {
+                return Err(format!("tree {ti} has a leaf label or probability out of range"));
+            }
+            for (i, nd) in t.nodes.iter().enumerate() {
+                if nd.k_bar == 0 {
+                    if nd.left as usize >= nl {
+                        return Err(format!("tree {ti} node {i} points to a missing leaf"));
+                    }
+                } else if nd.k_bar as usize > self.k
+                    || nd.energy >= self.grid.levels
+                    || nd.left as usize <= i
+                    || nd.right as usize <= i
+                    || nd.left as usize >= t.nodes.len()
+                    || nd.right as usize >= t.nodes.len()
+                    || nd.threshold.is_nan()
+                {
+                    return Err(format!("tree {ti} node {i} is malformed"));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl RandomForestParams {
+    /// Checks the parameters, then fits a new forest (see [`RandomForestValidParams::fit`]).
+    pub fn fit(self, set: &TrainingSet) -> Result<RandomForest, ForestError> {
+        self.check()?.fit(set)
+    }
+}
+
+impl RandomForestValidParams {
+    /// Grows `n_trees` trees on `set`, in parallel across trees (and across split candidates in
+    /// nodes of at least `parallel_node_size` samples). The energy range is taken from the
+    /// training spectra: `e_min` the smallest `log λ_1` (first nonzero), `e_max` the largest
+    /// `log λ_K`, `σ = wks_sigma_factor · (e_max − e_min) / wks_n_energies`; it is stored in the
+    /// model. Deterministic given the seed.
+    pub fn fit(&self, set: &TrainingSet) -> Result<RandomForest, ForestError> {
+        self.fit_with(None, set)
+    }
+
+    /// Incremental growth. With `previous = None`, a fresh fit. With `Some(prev)`, the policy is:
+    /// grow `min(trees_per_update, n_trees)` new trees on `set` (typically the enlarged training set) with
+    /// `prev`'s label set, `K` and energy grid (so old and new trees agree on the descriptor),
+    /// append them, and retire the **oldest** trees beyond `n_trees`. The new trees get seeds
+    /// that continue `prev`'s sequence. `prev` is not modified and stays usable meanwhile.
+    ///
+    /// Fails when `set`'s label count differs from `prev`'s or its shapes have fewer than
+    /// `prev.k()` eigenpairs.
+    pub fn fit_with(
+        &self,
+        previous: Option<&RandomForest>,
+        set: &TrainingSet,
+    ) -> Result<RandomForest, ForestError> {
+        let p = &self.0;
+        let (k, grid, n_new, first_index, mut trees) = match previous {
+            None => {
+                let k = set.k();
+                let grid = energy_grid(set, k, p)?;
+                (k, grid, p.n_trees, 0u64, Vec::new())
+            }
+            Some(prev) => {
+                if prev.n_labels != set.n_labels() {
+                    return Err(ForestError::IncompatibleModel(format!(
+                        "the model has {} labels but the training set {}",
+                        prev.n_labels,
+                        set.n_labels()
+                    )));
+                }
+                if set.k() < prev.k {
+                    return Err(ForestError::SpectrumTooShort { needed: prev.k, found: set.k() });
+                }
+                (
+                    prev.k,
+                    prev.grid,
+                    p.trees_per_update.min(p.n_trees),
+                    prev.next_tree_index,
+                    prev.trees.clone(),
+                )
+            }
+        };
+        if p.k_min > k {
+            return Err(ForestError::InvalidParameter {
+                name: "k_min",
+                reason: format!("must be at most the number of eigenpairs K = {k}, got {}", p.k_min),
+            });
+        }
+        let data = build_train_data(set, k, grid)?;
+        let span = tracing::info_span!("forest_fit", trees = n_new, samples = data.sample_label.len());
+        let _g = span.enter();
+        let new_trees: Vec<Tree> =
+            (0..n_new as u64).into_par_iter().map(|t| grow_tree(&data, p, first_index + t)).collect();
+        trees.extend(new_trees);
+        if trees.len() > p.n_trees {
+            let drop = trees.len() - p.n_trees;
+            trees.drain(..drop);
+        }
+        Ok(RandomForest {
+            params: p.clone(),
+            n_labels: set.n_labels(),
+            k,
+            grid,
+            trees,
+            next_tree_index: first_index + n_new as u64,
+        })
+    }
+}
+
+fn energy_grid(set: &TrainingSet, k: usize, p: &RandomForestParams) -> Result<EnergyGrid, ForestError> {
+    let (mut e_min, mut e_max) = (f64::INFINITY, f64::NEG_INFINITY);
+    for s in set.shapes() {
+        let ev = &s.spectrum.eigenvalues[..k];
+        if let Some(f) = first_nonzero_eigenvalue(ev) {
+            e_min = e_min.min(ev[f].ln());
+            e_max = e_max.max(ev[k - 1].ln());
+        }
+    }
+    let wks = WksParams { n_energies: p.wks_n_energies, sigma_factor: p.wks_sigma_factor };
+    let range = wks.range_from(e_min, e_max)?;
+    Ok(EnergyGrid { range, levels: p.energy_levels })
+}
+
+fn build_train_data(set: &TrainingSet, k: usize, grid: EnergyGrid) -> Result<TrainData, ForestError> {
+    let mut shapes = Vec::with_capacity(set.shapes().len());
+    let mut tables = Vec::with_capacity(set.shapes().len());
+    let (mut sample_shape, mut sample_vertex, mut sample_label) = (Vec::new(), Vec::new(), Vec::new());
+    for (si, s) in set.shapes().iter().enumerate() {
+        let pw = ParametricWks::new(&s.spectrum, k)?;
+        tables.push(pw.weight_table(&grid));
+        shapes.push(pw);
+        for (v, l) in s.labels.iter().enumerate() {
+            if let Some(l) = l {
+                sample_shape.push(si as u16);
+                sample_vertex.push(v as u32);
+                sample_label.push(*l);
+            }
+        }
+    }
+    if sample_label.len() > u32::MAX as usize {
+        return Err(ForestError::InvalidParameter {
+            name: "training set",
+            reason: format!("at most 2^32 - 1 samples, got {}", sample_label.len()),
+        });
+    }
+    let xlogx =
+        (0..=sample_label.len()).map(|c| if c == 0 { 0.0 } else { c as f64 * (c as f64).ln() }).collect();
+    Ok(TrainData {
+        shapes,
+        tables,
+        k,
+        levels: grid.levels,
+        sample_shape,
+        sample_vertex,
+        sample_label,
+        n_labels: set.n_labels(),
+        xlogx,
+    })
+}

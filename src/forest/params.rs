@@ -1,0 +1,191 @@
+//! Hyper-parameters of the random forest, linfa style: [`RandomForestParams`] is built with
+//! chained setters, [`RandomForestParams::check`] validates it into [`RandomForestValidParams`],
+//! which fits models.
+
+use serde::{Deserialize, Serialize};
+
+use super::ForestError;
+
+/// Unchecked hyper-parameters of a [`RandomForest`](super::RandomForest); see each setter for
+/// the meaning and the default. Obtain one with [`RandomForest::params`](super::RandomForest::params).
+///
+/// ```
+/// use shapeforest::forest::RandomForest;
+/// let p = RandomForest::params().n_trees(5).max_depth(12).seed(7).check().unwrap();
+/// assert_eq!(p.n_trees(), 5);
+/// let e = RandomForest::params().n_trees(0).check().unwrap_err();
+/// assert!(e.to_string().contains("at least 1"));
+/// ```
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RandomForestParams {
+    pub(crate) n_trees: usize,
+    pub(crate) max_depth: usize,
+    pub(crate) min_samples_split: usize,
+    pub(crate) min_samples_leaf: usize,
+    pub(crate) candidates_per_node: usize,
+    pub(crate) min_entropy: f64,
+    pub(crate) bagging_fraction: f64,
+    pub(crate) k_min: usize,
+    pub(crate) energy_levels: u32,
+    pub(crate) wks_n_energies: usize,
+    pub(crate) wks_sigma_factor: f64,
+    pub(crate) trees_per_update: usize,
+    pub(crate) parallel_node_size: usize,
+    pub(crate) seed: u64,
+}
+
+/// Hyper-parameters that passed [`RandomForestParams::check`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RandomForestValidParams(pub(crate) RandomForestParams);
+
+impl Default for RandomForestParams {
+    fn default() -> Self {
+        Self {
+            n_trees: 15,
+            max_depth: 25,
+            min_samples_split: 2,
+            min_samples_leaf: 1,
+            candidates_per_node: 20,
+            min_entropy: 0.0,
+            bagging_fraction: 0.7,
+            k_min: 5,
+            energy_levels: 1024,
+            wks_n_energies: 100,
+            wks_sigma_factor: 7.0,
+            trees_per_update: 5,
+            parallel_node_size: 20_000,
+            seed: 0,
+        }
+    }
+}
+
+macro_rules! setter {
+    ($(#[$m:meta])* $name:ident: $t:ty) => {
+        $(#[$m])*
+        pub fn $name(mut self, value: $t) -> Self {
+            self.$name = value;
+            self
+        }
+    };
+}
+
+impl RandomForestParams {
+    setter!(
+        /// Number of trees kept in the forest (default 15, at least 1).
+        n_trees: usize);
+    setter!(
+        /// Maximum depth of a tree; the root has depth 0 (default 25, at least 1).
+        max_depth: usize);
+    setter!(
+        /// A node with fewer samples becomes a leaf (default 2, at least 2).
+        min_samples_split: usize);
+    setter!(
+        /// Each child of a split keeps at least this many samples (default 1, at least 1).
+        min_samples_leaf: usize);
+    setter!(
+        /// Random split candidates `(e, k̄)` tried per node (default 20, at least 1). For each,
+        /// every threshold between consecutive sorted values is scored.
+        candidates_per_node: usize);
+    setter!(
+        /// A node whose label entropy (nats) is at most this becomes a leaf (default 0: only
+        /// pure nodes stop on entropy; must be finite and ≥ 0).
+        min_entropy: f64);
+    setter!(
+        /// Fraction of the training samples each tree sees, drawn without replacement
+        /// (default 0.7; must be in (0, 1]).
+        bagging_fraction: f64);
+    setter!(
+        /// Smallest truncation `k̄` drawn (default 5; at least 2 and at most the number of
+        /// eigenpairs `K` of the training set, checked at fit time).
+        k_min: usize);
+    setter!(
+        /// Number of points of the log-energy grid `e` is drawn from (default 1024, at least 2).
+        energy_levels: u32);
+    setter!(
+        /// `N` in the WKS band-pass width `σ = wks_sigma_factor · (e_max − e_min) / N`
+        /// (default 100, at least 1).
+        wks_n_energies: usize);
+    setter!(
+        /// Factor in `σ` (default 7, Aubry's; finite and > 0).
+        wks_sigma_factor: f64);
+    setter!(
+        /// Trees grown by an incremental update [`RandomForestValidParams::fit_with`]
+        /// (default 5, at least 1; capped at `n_trees`).
+        trees_per_update: usize);
+    setter!(
+        /// Nodes with at least this many samples evaluate their candidates in parallel
+        /// (default 20,000; at least 1). Does not change results.
+        parallel_node_size: usize);
+    setter!(
+        /// Seed of all random choices: the same seed and data give the same forest.
+        seed: u64);
+
+    /// Validates every hyper-parameter; the error names the parameter and states the rule.
+    pub fn check(self) -> Result<RandomForestValidParams, ForestError> {
+        let bad = |name: &'static str, reason: String| Err(ForestError::InvalidParameter { name, reason });
+        if self.n_trees < 1 {
+            return bad("n_trees", format!("must be at least 1, got {}", self.n_trees));
+        }
+        if self.max_depth < 1 {
+            return bad("max_depth", format!("must be at least 1, got {}", self.max_depth));
+        }
+        if self.min_samples_split < 2 {
+            return bad("min_samples_split", format!("must be at least 2, got {}", self.min_samples_split));
+        }
+        if self.min_samples_leaf < 1 {
+            return bad("min_samples_leaf", format!("must be at least 1, got {}", self.min_samples_leaf));
+        }
+        if self.candidates_per_node < 1 {
+            return bad(
+                "candidates_per_node",
+                format!("must be at least 1, got {}", self.candidates_per_node),
+            );
+        }
+        if !(self.min_entropy.is_finite() && self.min_entropy >= 0.0) {
+            return bad("min_entropy", format!("must be finite and at least 0, got {}", self.min_entropy));
+        }
+        if !(self.bagging_fraction > 0.0 && self.bagging_fraction <= 1.0) {
+            return bad(
+                "bagging_fraction",
+                format!("must be greater than 0 and at most 1, got {}", self.bagging_fraction),
+            );
+        }
+        if self.k_min < 2 {
+            return bad("k_min", format!("must be at least 2, got {}", self.k_min));
+        }
+        if self.energy_levels < 2 {
+            return bad("energy_levels", format!("must be at least 2, got {}", self.energy_levels));
+        }
+        if self.wks_n_energies < 1 {
+            return bad("wks_n_energies", format!("must be at least 1, got {}", self.wks_n_energies));
+        }
+        if !(self.wks_sigma_factor.is_finite() && self.wks_sigma_factor > 0.0) {
+            return bad(
+                "wks_sigma_factor",
+                format!("must be finite and greater than 0, got {}", self.wks_sigma_factor),
+            );
+        }
+        if self.trees_per_update < 1 {
+            return bad("trees_per_update", format!("must be at least 1, got {}", self.trees_per_update));
+        }
+        if self.parallel_node_size < 1 {
+            return bad("parallel_node_size", format!("must be at least 1, got {}", self.parallel_node_size));
+        }
+        Ok(RandomForestValidParams(self))
+    }
+}
+
+impl RandomForestValidParams {
+    /// The validated parameters.
+    pub fn params(&self) -> &RandomForestParams {
+        &self.0
+    }
+    /// Number of trees.
+    pub fn n_trees(&self) -> usize {
+        self.0.n_trees
+    }
+    /// Seed.
+    pub fn seed(&self) -> u64 {
+        self.0.seed
+    }
+}

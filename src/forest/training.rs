@@ -1,0 +1,216 @@
+//! Training data: shapes with their spectra and a (partial) map from vertices to labels.
+
+use std::io::BufRead;
+use std::sync::Arc;
+
+use super::ForestError;
+use crate::descriptor::first_nonzero_eigenvalue;
+use crate::spectral::Spectrum;
+
+/// One reference shape: its spectrum and, per vertex, the label it maps to (`None` = unlabelled,
+/// skipped during training).
+#[derive(Clone, Debug)]
+pub struct TrainingShape {
+    /// Name used in error messages and logs.
+    pub name: String,
+    /// Unit-area spectrum of the shape.
+    pub spectrum: Arc<Spectrum>,
+    /// Label of each vertex in the common label set `0..n_labels`, or `None`.
+    pub labels: Vec<Option<u32>>,
+}
+
+/// A shape that was left out of a [`TrainingSet`], and why.
+#[derive(Debug)]
+pub struct RejectedShape {
+    /// The shape's name.
+    pub name: String,
+    /// Why it was rejected.
+    pub error: ForestError,
+}
+
+/// A validated list of training shapes sharing a label set `0..n_labels`.
+///
+/// Built with [`TrainingSet::new`], which checks every shape and keeps the ones that fit,
+/// reporting the others in [`TrainingSet::rejected`]; training goes on with the rest.
+#[derive(Clone, Debug)]
+pub struct TrainingSet {
+    shapes: Vec<TrainingShape>,
+    n_labels: usize,
+    k: usize,
+    rejected: Vec<(String, String)>,
+}
+
+impl TrainingSet {
+    /// Validates `shapes` against the label set `0..n_labels`.
+    ///
+    /// A shape is rejected (with a [`ForestError::BadShape`] naming it) when its label vector
+    /// length differs from its vertex count, a label is `≥ n_labels`, its spectrum is malformed,
+    /// it has fewer than 2 nonzero eigenvalues, or no vertex is labelled. The common number of
+    /// eigenpairs `K` is the smallest over the accepted shapes. Fails only when no shape is left
+    /// (the error lists every rejection) or `n_labels` is 0.
+    pub fn new(shapes: Vec<TrainingShape>, n_labels: usize) -> Result<Self, ForestError> {
+        let (set, rejected) = Self::new_with_rejections(shapes, n_labels)?;
+        let _ = rejected;
+        Ok(set)
+    }
+
+    /// Like [`TrainingSet::new`], also returning each rejected shape with its error.
+    pub fn new_with_rejections(
+        shapes: Vec<TrainingShape>,
+        n_labels: usize,
+    ) -> Result<(Self, Vec<RejectedShape>), ForestError> {
+        if n_labels == 0 || n_labels > u32::MAX as usize {
+            return Err(ForestError::InvalidParameter {
+                name: "n_labels",
+                reason: format!("must be between 1 and 2^32 - 1, got {n_labels}"),
+            });
+        }
+        let mut ok = Vec::new();
+        let mut rejected = Vec::new();
+        for s in shapes {
+            match check_shape(&s, n_labels) {
+                Ok(()) => ok.push(s),
+                Err(reason) => {
+                    tracing::warn!(shape = %s.name, %reason, "training shape rejected");
+                    rejected.push(RejectedShape {
+                        name: s.name.clone(),
+                        error: ForestError::BadShape { name: s.name, reason },
+                    })
+                }
+            }
+        }
+        if ok.is_empty() {
+            let list: Vec<String> = rejected.iter().map(|r| r.error.to_string()).collect();
+            return Err(ForestError::EmptyTrainingSet { rejected: list.join("; ") });
+        }
+        if ok.len() > u16::MAX as usize {
+            return Err(ForestError::InvalidParameter {
+                name: "shapes",
+                reason: format!("at most {} training shapes, got {}", u16::MAX, ok.len()),
+            });
+        }
+        let k = ok.iter().map(|s| s.spectrum.k()).min().unwrap_or(0);
+        let rej = rejected.iter().map(|r| (r.name.clone(), r.error.to_string())).collect();
+        Ok((Self { shapes: ok, n_labels, k, rejected: rej }, rejected))
+    }
+
+    /// The accepted shapes.
+    pub fn shapes(&self) -> &[TrainingShape] {
+        &self.shapes
+    }
+
+    /// Size of the label set.
+    pub fn n_labels(&self) -> usize {
+        self.n_labels
+    }
+
+    /// Number of eigenpairs used from each shape (the minimum over the shapes).
+    pub fn k(&self) -> usize {
+        self.k
+    }
+
+    /// Names and reasons of the rejected shapes.
+    pub fn rejected(&self) -> &[(String, String)] {
+        &self.rejected
+    }
+
+    /// Total number of labelled vertices (training samples).
+    pub fn n_samples(&self) -> usize {
+        self.shapes.iter().map(|s| s.labels.iter().flatten().count()).sum()
+    }
+}
+
+fn check_shape(s: &TrainingShape, n_labels: usize) -> Result<(), String> {
+    let sp = &s.spectrum;
+    if s.labels.len() != sp.n_vertices {
+        return Err(format!(
+            "label map has {} entries but the spectrum has {} vertices",
+            s.labels.len(),
+            sp.n_vertices
+        ));
+    }
+    if sp.eigenvectors.len() != sp.n_vertices * sp.k() {
+        return Err(format!(
+            "spectrum stores {} eigenvector entries for {} vertices × {} eigenpairs",
+            sp.eigenvectors.len(),
+            sp.n_vertices,
+            sp.k()
+        ));
+    }
+    if sp.eigenvalues.iter().any(|l| !l.is_finite()) || sp.eigenvectors.iter().any(|v| !v.is_finite()) {
+        return Err("spectrum has non-finite values".into());
+    }
+    let nonzero = first_nonzero_eigenvalue(&sp.eigenvalues).map_or(0, |f| sp.k() - f);
+    if nonzero < 2 {
+        return Err(format!("spectrum has {nonzero} nonzero eigenvalues, need at least 2"));
+    }
+    if let Some((v, l)) =
+        s.labels.iter().enumerate().find_map(|(v, l)| l.filter(|&l| l as usize >= n_labels).map(|l| (v, l)))
+    {
+        return Err(format!("vertex {v} has label {l}, outside the label set 0..{n_labels}"));
+    }
+    if s.labels.iter().all(Option::is_none) {
+        return Err("no vertex is labelled".into());
+    }
+    Ok(())
+}
+
+/// The identity label map for shapes of one class sharing vertex indexing: vertex `i` has
+/// label `i`.
+///
+/// ```
+/// use shapeforest::forest::labels_identity;
+/// assert_eq!(labels_identity(3), vec![Some(0), Some(1), Some(2)]);
+/// ```
+pub fn labels_identity(n: usize) -> Vec<Option<u32>> {
+    (0..n as u32).map(Some).collect()
+}
+
+/// Reads a label map with one label per vertex per line (the `.vts` convention of remeshed
+/// FAUST/SCAPE: line `i` gives the label of vertex `i`). `one_based` says the file counts
+/// labels from 1. A line that is blank, `none`, `nan`, `-1` (or `0` in a one-based file) marks
+/// an unlabelled vertex. Only the first whitespace-separated token of a line is read.
+/// Labels `≥ n_labels` (after conversion to 0-based) are an error naming the line.
+///
+/// ```
+/// use shapeforest::forest::read_label_map;
+/// let text = "3\n1\nnone\n2\n";
+/// let l = read_label_map(text.as_bytes(), true, 3).unwrap();
+/// assert_eq!(l, vec![Some(2), Some(0), None, Some(1)]);
+/// assert!(read_label_map("4\n".as_bytes(), true, 3).is_err());
+/// ```
+pub fn read_label_map<R: BufRead>(
+    reader: R,
+    one_based: bool,
+    n_labels: usize,
+) -> Result<Vec<Option<u32>>, ForestError> {
+    let mut out = Vec::new();
+    for (i, line) in reader.lines().enumerate() {
+        let line = line.map_err(ForestError::Io)?;
+        let tok = line.split_whitespace().next().unwrap_or("");
+        let lower = tok.to_ascii_lowercase();
+        if tok.is_empty() || lower == "none" || lower == "nan" || tok == "-1" {
+            out.push(None);
+            continue;
+        }
+        let bad = |reason: String| ForestError::LabelMap { line: i + 1, reason };
+        let v: u64 = tok.parse().map_err(|_| bad(format!("`{tok}` is not a label index")))?;
+        let v = if one_based {
+            if v == 0 {
+                out.push(None);
+                continue;
+            }
+            v - 1
+        } else {
+            v
+        };
+        if v as usize >= n_labels {
+            return Err(bad(format!(
+                "label {tok} is outside the label set of {n_labels} ({})",
+                if one_based { "1-based" } else { "0-based" }
+            )));
+        }
+        out.push(Some(v as u32));
+    }
+    Ok(out)
+}
