@@ -17,6 +17,7 @@
 //! | [`matching`] | game-theoretic sparse matching (replicator dynamics) |
 //! | [`fmap`] | functional maps: soft map in Laplace bases, regularised solve, point-to-point, ZoomOut |
 //! | [`eval`] | geodesic error of maps, cumulative curves, CSV and SVG reports |
+//! | [`regularizer`] | forest posterior → consistent matches → regularised functional map → dense map |
 //! | [`synth`] | deterministic synthetic shape families with known correspondence and test primitives |
 //!
 //! Conventions used throughout:
@@ -33,6 +34,7 @@ pub mod forest;
 pub mod geodesic;
 pub mod matching;
 pub mod mesh;
+pub mod regularizer;
 pub mod spectral;
 pub mod synth;
 
