@@ -27,6 +27,9 @@ pub enum Error {
     /// A functional-map computation failed.
     #[error(transparent)]
     Fmap(#[from] crate::fmap::FmapError),
+    /// Generating a synthetic shape failed.
+    #[error(transparent)]
+    Synth(#[from] crate::synth::SynthError),
 }
 
 /// Result alias using the crate [`enum@Error`].
