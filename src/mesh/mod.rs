@@ -1,12 +1,53 @@
-//! Triangle meshes: the [`Mesh`] type, validation, geometric quantities and summaries.
+//! Triangle meshes: the [`Mesh`] type, validation, geometric quantities and summaries, and
+//! robust readers and writers.
 //!
 //! Conventions: vertices are `[x, y, z]` in `f64`, faces are 0-based vertex index triples with
 //! counter-clockwise orientation. Loading never reorders vertices (ground-truth correspondence
 //! is by vertex index) and never drops unreferenced vertices.
+//!
+//! # Reading
+//! [`read_mesh`] / [`read_mesh_with_report`] read a file by extension: OFF (`.off`, with
+//! `COFF`/`NOFF` variants, vertex colours and polygons), OBJ (`.obj`), PLY (`.ply`, ascii and
+//! binary), TOSCA pairs (`.vert` + `.tri`), each optionally gzip-compressed (`.gz`). The
+//! per-format functions [`parse_off`], [`parse_obj`], [`parse_ply`], [`parse_tosca`] (and
+//! [`parse_mesh`], [`read_mesh_from`]) read from memory or any reader. Polygons are split into
+//! triangle fans.
+//!
+//! Readers never panic, whatever the bytes: malformed data gives a [`MeshError`] naming the
+//! file, the line (or PLY element) and what was expected, e.g.
+//! `cat.off: line 17: expected 3 coordinates, found 2`. Counts in headers are never trusted
+//! for allocation beyond what the data's size allows. Point clouds (vertices, no faces) are
+//! rejected with [`MeshError::PointCloud`].
+//!
+//! Problems that do not prevent use (zero-area faces, non-manifold edges, unreferenced
+//! vertices, duplicate faces, triangulated polygons, skipped content) are returned as
+//! [`MeshWarning`]s in a [`MeshReport`], which also carries the [`MeshSummary`].
+//!
+//! # Writing
+//! [`write_mesh`] writes by extension; [`write_off`], [`write_obj`], [`write_ply`] (ascii or
+//! binary, optional vertex colours) and [`write_tosca`] write to any `Write`. Text formats
+//! print coordinates in shortest round-trip form, so write-then-read is bit-exact in every
+//! format.
 
 mod error;
+mod io;
+mod obj;
+mod off;
+mod ply;
+mod report;
+mod summary;
+mod text;
+mod tosca;
 
-pub use error::MeshError;
+pub use error::{Location, MeshError};
+pub use io::{parse_mesh, read_mesh, read_mesh_from, read_mesh_with_report, write_mesh};
+pub use obj::{parse_obj, write_obj};
+pub use off::{parse_off, write_off};
+pub use ply::{parse_ply, write_ply, PlyEncoding};
+pub use report::{MeshFormat, MeshReport, MeshWarning};
+pub use summary::{is_zero_area, ComponentSize, MeshSummary};
+pub use text::MAX_DECOMPRESSED_BYTES;
+pub use tosca::{parse_tosca, parse_tri, parse_vert, write_tosca};
 
 use serde::{Deserialize, Serialize};
 
@@ -23,7 +64,9 @@ pub struct Mesh {
 }
 
 impl Mesh {
-    /// Builds a mesh, checking the invariants every algorithm relies on.
+    /// Builds a mesh, checking the invariants every algorithm relies on: at least one vertex
+    /// ([`MeshError::Empty`]) and one face ([`MeshError::PointCloud`]), finite coordinates,
+    /// face indices in range, no face repeating a vertex.
     ///
     /// ```
     /// use shapeforest::mesh::Mesh;
@@ -32,8 +75,11 @@ impl Mesh {
     /// assert!(Mesh::new(vec![[0.0; 3]], vec![[0, 1, 2]]).is_err());
     /// ```
     pub fn new(vertices: Vec<[f64; 3]>, faces: Vec<[usize; 3]>) -> Result<Self, MeshError> {
-        if vertices.is_empty() || faces.is_empty() {
+        if vertices.is_empty() {
             return Err(MeshError::Empty { vertices: vertices.len(), faces: faces.len() });
+        }
+        if faces.is_empty() {
+            return Err(MeshError::PointCloud { vertices: vertices.len() });
         }
         if let Some(v) = vertices.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
             return Err(MeshError::NonFiniteVertex { vertex: v });
