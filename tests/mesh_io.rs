@@ -405,3 +405,41 @@ fn real_tosca_r5k_gz_reads_with_known_counts() {
         assert_eq!(decode(&encode(&m, format), format).unwrap(), m, "{format}");
     }
 }
+
+#[test]
+fn every_real_tosca_r5k_mesh_reads_and_its_ground_truth_indices_fit() {
+    let Some(dir) = data_dir() else { return };
+    let shapes = dir.join("tosca-r5k/TOSCA_Isometric/vtx_5k");
+    let Ok(entries) = std::fs::read_dir(&shapes) else {
+        println!("SKIPPED: {} is absent", shapes.display());
+        return;
+    };
+    let mut n_read = 0;
+    for entry in entries {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        let Some(stem) = name.strip_suffix(".off.gz") else { continue };
+        let mesh = read_mesh(&path).unwrap_or_else(|e| panic!("{e}"));
+        let vts = shapes.join("corres").join(format!("{stem}.vts"));
+        if let Ok(text) = std::fs::read_to_string(&vts) {
+            for (k, line) in text.lines().enumerate() {
+                let i: usize =
+                    line.trim().parse().unwrap_or_else(|_| panic!("{}: line {}", vts.display(), k + 1));
+                assert!((1..=mesh.n_vertices()).contains(&i), "{}: line {}: {i}", vts.display(), k + 1);
+            }
+        }
+        n_read += 1;
+    }
+    assert!(n_read > 0, "no .off.gz files in {}", shapes.display());
+}
+
+#[test]
+fn errors_and_reports_can_cross_threads() {
+    fn assert_send_sync<T: Send + Sync + 'static>() {}
+    assert_send_sync::<MeshError>();
+    assert_send_sync::<shapeforest::mesh::MeshReport>();
+    assert_send_sync::<shapeforest::mesh::MeshSummary>();
+    // And convert into the crate error.
+    let e: shapeforest::Error = parse_off(b"").unwrap_err().into();
+    assert!(e.to_string().contains("expected an OFF header"));
+}

@@ -146,7 +146,10 @@ fn ply_error(e: ply_rs_bw::parser::ParseError, ascii: bool, def: Option<&Element
         Some(n) => text.strip_prefix(&format!("Line {n}: ")).unwrap_or(&text).to_string(),
         None => text,
     };
-    let mut message: String = text.replace("\n\t", "; ").replace('\n', " ").chars().take(300).collect();
+    // ply-rs appends the PEG grammar's expectation sets after "Error:": keep the readable part.
+    let text = text.replace("\n\t", "; ").replace('\n', " ");
+    let text = text.split("; Error:").next().unwrap_or_default().trim();
+    let mut message: String = text.chars().take(200).collect();
     if message.len() < text.len() {
         message.push('…');
     }
@@ -445,6 +448,10 @@ mod tests {
         );
         let e = parse_ply(format!("{HEAD}0 0 0\n1 0 0\n0 x 0\n3 0 1 2\n").as_bytes()).unwrap_err();
         assert_eq!(e.line(), Some(12), "{e}");
+        let msg = e.to_string();
+        assert!(msg.starts_with("line 12: invalid PLY data: Couldn't read element line"), "{msg}");
+        assert!(!msg.contains("expected one of"), "grammar noise kept: {msg}");
+        assert_eq!(err("hello"), "line 1: invalid PLY data: Expected magic number 'ply'.; String: 'hello'");
     }
 
     #[test]
