@@ -128,8 +128,17 @@ pub struct RegularizerTimings {
 
 /// The result of regularising one prediction.
 pub struct DenseMap {
-    /// Test vertex → reference vertex, from the regularised functional map.
+    /// Test vertex → reference vertex (the regulariser's output): among the forest's candidates
+    /// of each vertex, the one whose geodesic distances to the matched anchors agree best with
+    /// the vertex's own (`Σ_j ω_j |d_M(m, p_j) − d_R(r, q_j)|`, the pointwise form of the
+    /// distance-map term of eq. 11.19); vertices without candidates take the functional map's.
     pub map: Vec<usize>,
+    /// Test vertex → reference vertex: among the forest's candidates, the one nearest to the
+    /// regularised functional map's spectral embedding.
+    pub spectral_map: Vec<usize>,
+    /// Test vertex → reference vertex from the regularised functional map alone
+    /// (unrestricted nearest neighbour in the spectral embedding).
+    pub fmap_map: Vec<usize>,
     /// The ZoomOut-refined map, when refinement was asked for.
     pub refined_map: Option<Vec<usize>>,
     /// The forest's own maximum-a-posteriori map (test vertex → reference vertex), for
@@ -285,7 +294,10 @@ pub fn regularize(
 
     // 6. Point map, and optional refinement.
     let t0 = Instant::now();
-    let map = fmap::point_to_point(&test.spectrum, &reference.spectrum, c.as_ref())?;
+    let fmap_map = fmap::point_to_point(&test.spectrum, &reference.spectrum, c.as_ref())?;
+    let spectral_map =
+        fmap::point_to_point_restricted(&test.spectrum, &reference.spectrum, c.as_ref(), &posterior)?;
+    let map = anchor_consistent_map(&a_fields, &b_fields, &weights, &posterior, &fmap_map);
     timings.point_map_s = t0.elapsed().as_secs_f64();
     let refined_map = match params.zoomout {
         Some(z) if kt == kr => {
@@ -304,5 +316,36 @@ pub fn regularize(
         .iter()
         .map(|m| VertexMatch { test: samples[m.test], reference: ref_points[m.reference], weight: m.weight })
         .collect();
-    Ok(DenseMap { map, refined_map, forest_map, fmap_predicted, fmap: c, matches, timings })
+    Ok(DenseMap { map, spectral_map, fmap_map, refined_map, forest_map, fmap_predicted, fmap: c, matches, timings })
+}
+
+/// For each test vertex, the candidate reference vertex whose normalised distances to the
+/// anchors best match the vertex's own (weighted L1); `fallback` where there is no candidate
+/// or no anchor.
+fn anchor_consistent_map(
+    test_fields: &Mat<f64>,
+    ref_fields: &Mat<f64>,
+    weights: &[f64],
+    posterior: &LabelledPosterior<'_>,
+    fallback: &[usize],
+) -> Vec<usize> {
+    use rayon::prelude::*;
+    let s = weights.len();
+    if s == 0 {
+        return fallback.to_vec();
+    }
+    (0..fallback.len())
+        .into_par_iter()
+        .map(|m| {
+            let mut best = (f64::INFINITY, fallback[m]);
+            posterior.for_each_entry(m, &mut |r, _| {
+                let cost: f64 =
+                    (0..s).map(|j| weights[j] * (test_fields[(m, j)] - ref_fields[(r, j)]).abs()).sum();
+                if cost < best.0 {
+                    best = (cost, r);
+                }
+            });
+            best.1
+        })
+        .collect()
 }

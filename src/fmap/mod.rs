@@ -349,6 +349,53 @@ pub fn point_to_point_reverse(
     Ok(nearest_rows(basis(reference, kr), emb.as_ref()))
 }
 
+/// Point-to-point map `T: M → R` restricted to candidates: each test vertex goes to the
+/// candidate reference vertex (from `soft`, e.g. the forest's posterior support) nearest to
+/// its row of `Φ_M C` in the spectral embedding; vertices without candidates fall back to the
+/// unrestricted nearest neighbour. This keeps the precision of the candidates and the global
+/// consistency (e.g. the left/right orientation) of the functional map.
+pub fn point_to_point_restricted<S: SoftCorrespondence + ?Sized>(
+    test: &Spectrum,
+    reference: &Spectrum,
+    c: MatRef<'_, f64>,
+    soft: &S,
+) -> Result<Vec<usize>, FmapError> {
+    let (kt, kr) = (c.nrows(), c.ncols());
+    check_basis("test", test, kt)?;
+    check_basis("reference", reference, kr)?;
+    if soft.n_test_vertices() != test.n_vertices {
+        return Err(FmapError::SizeMismatch(format!(
+            "the candidates cover {} test vertices, the test shape has {}",
+            soft.n_test_vertices(),
+            test.n_vertices
+        )));
+    }
+    let mut emb = Mat::zeros(test.n_vertices, kr);
+    matmul(emb.as_mut(), Accum::Replace, basis(test, kt), c, 1.0, Par::rayon(0));
+    let phi_r = basis(reference, kr);
+    let mut out: Vec<Option<usize>> = vec![None; test.n_vertices];
+    out.par_iter_mut().enumerate().for_each(|(m, slot)| {
+        let mut best = f64::INFINITY;
+        soft.for_each_entry(m, &mut |r, _| {
+            if r < reference.n_vertices {
+                let d: f64 = (0..kr).map(|j| (emb[(m, j)] - phi_r[(r, j)]).powi(2)).sum();
+                if d < best {
+                    best = d;
+                    *slot = Some(r);
+                }
+            }
+        });
+    });
+    let missing: Vec<usize> = (0..test.n_vertices).filter(|&m| out[m].is_none()).collect();
+    if !missing.is_empty() {
+        let queries = Mat::from_fn(missing.len(), kr, |i, j| emb[(missing[i], j)]);
+        for (i, r) in nearest_rows(queries.as_ref(), phi_r).into_iter().enumerate() {
+            out[missing[i]] = Some(r);
+        }
+    }
+    Ok(out.into_iter().map(|r| r.unwrap_or(0)).collect())
+}
+
 /// ZoomOut refinement (Melzi et al., SIGGRAPH Asia 2019): starting from `c` (square, `k0 × k0`),
 /// alternately convert to a point map and re-estimate the map with one more basis function
 /// (every `step`), up to `k_final`. Returns the refined map and its point-to-point map.

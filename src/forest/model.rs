@@ -79,20 +79,28 @@ impl RandomForest {
         let table = pw.weight_table(&self.grid);
         let n = pw.n_vertices();
         let inv_trees = 1.0 / self.trees.len() as f64;
-        const CHUNK: usize = 512;
+        // Vertices are processed in chunks, tree by tree within a chunk, so the upper levels of
+        // each tree stay in cache while the chunk's vertices descend it.
+        const CHUNK: usize = 256;
+        let n_trees = self.trees.len();
         let chunks: Vec<(Vec<u32>, Vec<u32>, Vec<f32>)> = (0..n.div_ceil(CHUNK))
             .into_par_iter()
             .map(|ci| {
                 let (a, b) = (ci * CHUNK, ((ci + 1) * CHUNK).min(n));
+                let mut leaves = vec![0u32; (b - a) * n_trees];
+                for (ti, t) in self.trees.iter().enumerate() {
+                    for v in a..b {
+                        leaves[(v - a) * n_trees + ti] = t.leaf(&table, self.k, pw.row(v)) as u32;
+                    }
+                }
                 let mut lens = Vec::with_capacity(b - a);
                 let mut labels = Vec::new();
                 let mut probs = Vec::new();
                 let mut buf: Vec<(u32, f32)> = Vec::new();
                 for v in a..b {
-                    let row = pw.row(v);
                     buf.clear();
-                    for t in &self.trees {
-                        let (ls, ps) = t.leaf_distribution(t.leaf(&table, self.k, row));
+                    for (ti, t) in self.trees.iter().enumerate() {
+                        let (ls, ps) = t.leaf_distribution(leaves[(v - a) * n_trees + ti] as usize);
                         buf.extend(ls.iter().copied().zip(ps.iter().copied()));
                     }
                     buf.sort_unstable_by_key(|x| x.0);

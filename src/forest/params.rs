@@ -49,7 +49,7 @@ impl Default for RandomForestParams {
             min_entropy: 0.0,
             bagging_fraction: 0.7,
             k_min: 5,
-            energy_levels: 1024,
+            energy_levels: 256,
             wks_n_energies: 100,
             wks_sigma_factor: 7.0,
             trees_per_update: 5,
@@ -99,7 +99,7 @@ impl RandomForestParams {
         /// eigenpairs `K` of the training set, checked at fit time).
         k_min: usize);
     setter!(
-        /// Number of points of the log-energy grid `e` is drawn from (default 1024, at least 2).
+        /// Number of points of the log-energy grid `e` is drawn from (default 256, at least 2).
         energy_levels: u32);
     setter!(
         /// `N` in the WKS band-pass width `σ = wks_sigma_factor · (e_max − e_min) / N`

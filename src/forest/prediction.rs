@@ -245,7 +245,10 @@ impl Prediction {
 ///
 /// ```
 /// use shapeforest::forest::hit_ratio;
-/// assert_eq!(hit_ratio(&[Some(1), Some(2), None], &[Some(1), Some(3), Some(0)]), 0.5);
+/// // vertex 0 hit, vertex 1 wrong, vertex 2 not predicted: 1 hit of 3 labelled vertices
+/// let r = hit_ratio(&[Some(1), Some(2), None], &[Some(1), Some(3), Some(0)]);
+/// assert!((r - 1.0 / 3.0).abs() < 1e-12);
+/// assert_eq!(hit_ratio(&[Some(4), Some(0)], &[None, Some(0)]), 1.0);
 /// ```
 pub fn hit_ratio(predicted: &[Option<u32>], truth: &[Option<u32>]) -> f64 {
     let mut n = 0usize;
