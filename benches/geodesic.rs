@@ -1,6 +1,6 @@
 //! Geodesic kernels on a ladder of torus sizes (~5K, ~20K, ~50K vertices): heat-method setup
-//! (both factorisations), 50 heat distance maps solved as one block, and fast marching and
-//! Dijkstra from one source.
+//! (both factorisations), 50 heat distance maps solved as one block (and one at a time), fast
+//! marching from one source (with and without the cached precomputation) and Dijkstra.
 //!
 //! Set `GEODESIC_BENCH_OFF_DIR=/some/dir` to also write the benchmark meshes there as OFF
 //! files (`torus_<n>.off`), so a peer (e.g. potpourri3d's `MeshHeatMethodDistanceSolver`) can
@@ -11,7 +11,9 @@ use std::io::Write;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use shapeforest::geodesic::{dijkstra_distances, fast_marching_distances, HeatMethodSolver, HeatParams};
+use shapeforest::geodesic::{
+    dijkstra_distances, fast_marching_distances, FastMarchingSolver, HeatMethodSolver, HeatParams,
+};
 use shapeforest::mesh::Mesh;
 use shapeforest::synth::torus;
 
@@ -95,6 +97,17 @@ fn bench_geodesic(c: &mut Criterion) {
         group.throughput(Throughput::Elements(m.n_vertices() as u64));
         group.bench_with_input(BenchmarkId::from_parameter(m.n_vertices()), m, |b, m| {
             b.iter(|| fast_marching_distances(black_box(m), &[0]).expect("distances"))
+        });
+    }
+    group.finish();
+
+    let mut group = c.benchmark_group("fast_marching_query_cached");
+    group.sample_size(10).measurement_time(Duration::from_secs(3)).warm_up_time(Duration::from_secs(1));
+    for m in &meshes {
+        let solver = FastMarchingSolver::new(m);
+        group.throughput(Throughput::Elements(m.n_vertices() as u64));
+        group.bench_with_input(BenchmarkId::from_parameter(m.n_vertices()), m, |b, _| {
+            b.iter(|| solver.distances_from(black_box(&[0])).expect("distances"))
         });
     }
     group.finish();

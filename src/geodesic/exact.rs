@@ -84,15 +84,141 @@ pub(crate) fn dijkstra_min_update(graph: &EdgeGraph, dist: &mut [f64], source: u
     dijkstra_relax(graph, dist, &mut heap);
 }
 
-/// Cached topology for fast marching: incident faces of every vertex (CSR).
-pub(crate) struct FastMarching<'a> {
+/// First-order fast marching with its per-mesh precomputation cached (incident faces of every
+/// vertex, the unfolded vertex of every obtuse corner): build once, query many sources. See
+/// [`fast_marching_distances`] for the method.
+///
+/// ```
+/// use shapeforest::geodesic::FastMarchingSolver;
+/// let grid = shapeforest::synth::grid_plane(11, 11, 1.0, 1.0);
+/// let solver = FastMarchingSolver::new(&grid);
+/// let d = solver.distances_from(&[0]).unwrap();
+/// assert!((d[120] - 2f64.sqrt()).abs() < 1e-9);
+/// ```
+pub struct FastMarchingSolver<'a> {
     mesh: &'a Mesh,
     offsets: Vec<usize>,
     faces: Vec<usize>,
+    /// For each obtuse corner `3·face + corner`: the vertex found by unfolding the triangles
+    /// beyond the opposite edge into the corner's plane, and its unfolded position.
+    virtual_vertex: Vec<Option<(usize, [f64; 3])>>,
+    /// Corners (`3·face + corner`) for which each vertex is the virtual vertex (CSR).
+    virtual_offsets: Vec<usize>,
+    virtual_corners: Vec<usize>,
 }
 
-impl<'a> FastMarching<'a> {
-    pub(crate) fn new(mesh: &'a Mesh) -> Self {
+/// The face across each face edge: entry `3·f + c` is the face sharing edge
+/// `(f[c], f[c + 1])` with `f`, or `usize::MAX` on the boundary (on non-manifold edges, the
+/// faces are paired arbitrarily but deterministically).
+fn face_neighbours(mesh: &Mesh) -> Vec<usize> {
+    let mut half: Vec<(usize, usize, usize)> = Vec::with_capacity(mesh.n_faces() * 3);
+    for (fi, f) in mesh.faces.iter().enumerate() {
+        for c in 0..3 {
+            let (a, b) = (f[c], f[(c + 1) % 3]);
+            half.push((a.min(b), a.max(b), 3 * fi + c));
+        }
+    }
+    half.sort_unstable();
+    let mut out = vec![usize::MAX; mesh.n_faces() * 3];
+    for w in half.chunk_by(|x, y| x.0 == y.0 && x.1 == y.1) {
+        for pair in w.chunks(2) {
+            if let [x, y] = pair {
+                out[x.2] = y.2 / 3;
+                out[y.2] = x.2 / 3;
+            }
+        }
+    }
+    out
+}
+
+/// Unfolding steps tried per obtuse corner before giving up (then edge updates are used).
+const MAX_UNFOLD_STEPS: usize = 12;
+
+/// Splits an obtuse corner the Kimmel–Sethian way: unfolds the strip of triangles beyond the
+/// opposite edge into the corner's plane until a vertex falls strictly inside the corner's
+/// angular sector. Returns that vertex and its unfolded 3D position (in the corner's plane).
+fn unfold_obtuse_corner(
+    mesh: &Mesh,
+    neighbours: &[usize],
+    face: usize,
+    corner: usize,
+) -> Option<(usize, [f64; 3])> {
+    let f = mesh.faces[face];
+    let (ci, ai, bi) = (f[corner], f[(corner + 1) % 3], f[(corner + 2) % 3]);
+    let pc = mesh.vertices[ci];
+    let ca = sub(mesh.vertices[ai], pc);
+    let cb = sub(mesh.vertices[bi], pc);
+    if dot(ca, cb) >= 0.0 {
+        return None; // not obtuse
+    }
+    // 2D frame at c: e1 along ca, e2 in the face plane
+    let la = norm(ca);
+    let e1 = [ca[0] / la, ca[1] / la, ca[2] / la];
+    let x = dot(cb, e1);
+    let perp = [cb[0] - x * e1[0], cb[1] - x * e1[1], cb[2] - x * e1[2]];
+    let lp = norm(perp);
+    if !(lp > 0.0 && la > 0.0) {
+        return None;
+    }
+    let e2 = [perp[0] / lp, perp[1] / lp, perp[2] / lp];
+    let a2 = [la, 0.0];
+    let b2 = [x, lp];
+    let cross2 = |u: [f64; 2], v: [f64; 2]| u[0] * v[1] - u[1] * v[0];
+    // the strip: current edge (p, q) with unfolded positions, and the face we came from
+    let (mut p, mut p2, mut q, mut q2, mut from) = (ai, a2, bi, b2, face);
+    for _ in 0..MAX_UNFOLD_STEPS {
+        let ff = mesh.faces[from];
+        let local = (0..3).find(|&c| {
+            let (a, b) = (ff[c], ff[(c + 1) % 3]);
+            (a == p && b == q) || (a == q && b == p)
+        })?;
+        let next = neighbours[3 * from + local];
+        if next == usize::MAX {
+            return None; // boundary edge
+        }
+        let nf = mesh.faces[next];
+        let r = *nf.iter().find(|&&v| v != p && v != q)?;
+        // unfold r across (p, q), onto the side away from c (the origin)
+        let lpr = norm(sub(mesh.vertices[r], mesh.vertices[p]));
+        let lqr = norm(sub(mesh.vertices[r], mesh.vertices[q]));
+        let pq = [q2[0] - p2[0], q2[1] - p2[1]];
+        let d = (pq[0] * pq[0] + pq[1] * pq[1]).sqrt();
+        if !(d > 0.0) {
+            return None;
+        }
+        let ex = [pq[0] / d, pq[1] / d];
+        let mut ey = [-ex[1], ex[0]];
+        if ey[0] * (-p2[0]) + ey[1] * (-p2[1]) > 0.0 {
+            ey = [-ey[0], -ey[1]];
+        }
+        let rx = (lpr * lpr - lqr * lqr + d * d) / (2.0 * d);
+        let ry = (lpr * lpr - rx * rx).max(0.0).sqrt();
+        let r2 = [p2[0] + rx * ex[0] + ry * ey[0], p2[1] + rx * ex[1] + ry * ey[1]];
+        let side_a = cross2(a2, r2); // > 0: r is past a towards b
+        let side_b = cross2(r2, b2); // > 0: r is before b
+        if side_a > 0.0 && side_b > 0.0 {
+            let pos = [
+                pc[0] + r2[0] * e1[0] + r2[1] * e2[0],
+                pc[1] + r2[0] * e1[1] + r2[1] * e2[1],
+                pc[2] + r2[0] * e1[2] + r2[1] * e2[2],
+            ];
+            return Some((r, pos));
+        }
+        // continue through the edge of the new triangle that the sector crosses
+        if side_a <= 0.0 {
+            // r lies outside, beyond a: the sector crosses edge (r, q)
+            (p, p2) = (r, r2);
+        } else {
+            (q, q2) = (r, r2);
+        }
+        from = next;
+    }
+    None
+}
+
+impl<'a> FastMarchingSolver<'a> {
+    /// Precomputes the adjacency and the obtuse-corner unfoldings of `mesh`.
+    pub fn new(mesh: &'a Mesh) -> Self {
         let n = mesh.n_vertices();
         let mut offsets = vec![0usize; n + 1];
         for f in &mesh.faces {
@@ -111,7 +237,41 @@ impl<'a> FastMarching<'a> {
                 fill[v] += 1;
             }
         }
-        Self { mesh, offsets, faces }
+        let neighbours = face_neighbours(mesh);
+        let virtual_vertex: Vec<Option<(usize, [f64; 3])>> =
+            (0..mesh.n_faces() * 3).map(|k| unfold_obtuse_corner(mesh, &neighbours, k / 3, k % 3)).collect();
+        let mut virtual_offsets = vec![0usize; n + 1];
+        for (d, _) in virtual_vertex.iter().flatten() {
+            virtual_offsets[d + 1] += 1;
+        }
+        for v in 0..n {
+            virtual_offsets[v + 1] += virtual_offsets[v];
+        }
+        let mut fill = virtual_offsets.clone();
+        let mut virtual_corners = vec![0usize; virtual_offsets[n]];
+        for (k, vv) in virtual_vertex.iter().enumerate() {
+            if let Some((d, _)) = vv {
+                virtual_corners[fill[*d]] = k;
+                fill[*d] += 1;
+            }
+        }
+        Self { mesh, offsets, faces, virtual_vertex, virtual_offsets, virtual_corners }
+    }
+
+    /// Lowers `dist[c]` (pushing it on the heap) if `t` improves it.
+    #[inline]
+    fn offer(dist: &mut [f64], heap: &mut BinaryHeap<Entry>, c: usize, t: f64) {
+        if t < dist[c] {
+            dist[c] = t;
+            heap.push(Entry { dist: t, vertex: c });
+        }
+    }
+
+    /// Distance from the nearest of `sources` to every vertex (`f64::INFINITY` where the surface
+    /// does not connect).
+    pub fn distances_from(&self, sources: &[usize]) -> Result<Vec<f64>, GeodesicError> {
+        check_sources(sources, self.mesh.n_vertices())?;
+        Ok(self.run(sources))
     }
 
     /// Distances from the nearest source (sources already validated).
@@ -144,9 +304,31 @@ impl<'a> FastMarching<'a> {
                             best = best.min(t);
                         }
                     }
-                    if best < dist[c] {
-                        dist[c] = best;
-                        heap.push(Entry { dist: best, vertex: c });
+                    // obtuse corner at c: the virtual triangle (c, v, unfolded vertex)
+                    let corner = f.iter().position(|&x| x == c).unwrap_or(0);
+                    if let Some((w, pw)) = self.virtual_vertex[3 * fi + corner] {
+                        if accepted[w] {
+                            if let Some(t) = triangle_update(p[v], d, pw, dist[w], p[c]) {
+                                best = best.min(t);
+                            }
+                        }
+                    }
+                    Self::offer(&mut dist, &mut heap, c, best);
+                }
+            }
+            // v as the unfolded vertex of obtuse corners elsewhere
+            for &k in &self.virtual_corners[self.virtual_offsets[v]..self.virtual_offsets[v + 1]] {
+                let f = self.mesh.faces[k / 3];
+                let c = f[k % 3];
+                let Some((_, pv)) = self.virtual_vertex[k] else { continue };
+                if accepted[c] {
+                    continue;
+                }
+                for x in [f[(k % 3 + 1) % 3], f[(k % 3 + 2) % 3]] {
+                    if accepted[x] {
+                        if let Some(t) = triangle_update(p[x], dist[x], pv, d, p[c]) {
+                            Self::offer(&mut dist, &mut heap, c, t);
+                        }
                     }
                 }
             }
@@ -165,8 +347,10 @@ impl<'a> FastMarching<'a> {
 /// straight ray from that source to `c` crosses the edge `ab` (the update is causal) and
 /// `T_c ≥ max(T_a, T_b)`. Otherwise the edge updates `T_a + |ac|`, `T_b + |bc|` are used, as
 /// in Dijkstra. For a point source in a flat region this update is exact, so the error comes
-/// from curvature and from the fallbacks (obtuse triangles, whose non-causal updates
-/// Kimmel–Sethian resolve by unfolding, fall back to edge updates here).
+/// from curvature and from the remaining fallbacks. Obtuse corners are split as in
+/// Kimmel–Sethian: the triangles beyond the opposite edge are unfolded into the corner's plane
+/// until a vertex falls inside the corner's sector (at most 12 steps), and that vertex forms
+/// two virtual acute triangles with the corner's edges.
 ///
 /// ```
 /// use shapeforest::geodesic::fast_marching_distances;
@@ -177,7 +361,7 @@ impl<'a> FastMarching<'a> {
 /// ```
 pub fn fast_marching_distances(mesh: &Mesh, sources: &[usize]) -> Result<Vec<f64>, GeodesicError> {
     check_sources(sources, mesh.n_vertices())?;
-    Ok(FastMarching::new(mesh).run(sources))
+    Ok(FastMarchingSolver::new(mesh).run(sources))
 }
 
 /// The two-neighbour update described in [`fast_marching_distances`]: `None` when the

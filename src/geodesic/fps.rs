@@ -2,7 +2,7 @@
 
 use crate::mesh::{dot, sub, Mesh};
 
-use super::exact::{dijkstra_min_update, FastMarching};
+use super::exact::{dijkstra_min_update, FastMarchingSolver};
 use super::topology::{check_sources, EdgeGraph};
 use super::GeodesicError;
 
@@ -139,18 +139,17 @@ pub(crate) fn geodesic_sampling_with_field(
     if n == 0 {
         return (dist, samples);
     }
-    let graph = EdgeGraph::new(mesh);
-    let marcher = FastMarching::new(mesh);
+    let graph = (metric == SamplingMetric::Dijkstra).then(|| EdgeGraph::new(mesh));
+    let marcher = (metric == SamplingMetric::FastMarching).then(|| FastMarchingSolver::new(mesh));
     let mut next = first;
     while samples.len() < n {
         samples.push(next);
-        match metric {
-            SamplingMetric::Dijkstra => dijkstra_min_update(&graph, &mut dist, next),
-            SamplingMetric::FastMarching => {
-                let fresh = marcher.run(&[next]);
-                for (d, f) in dist.iter_mut().zip(fresh) {
-                    *d = d.min(f);
-                }
+        if let Some(graph) = &graph {
+            dijkstra_min_update(graph, &mut dist, next);
+        }
+        if let Some(marcher) = &marcher {
+            for (d, f) in dist.iter_mut().zip(marcher.run(&[next])) {
+                *d = d.min(f);
             }
         }
         next = argmax(dist.iter().map(|&d| if d.is_finite() { d } else { f64::NEG_INFINITY }));

@@ -5,8 +5,9 @@
 //!   solved as one block. This is the fast, smooth distance used by the regulariser.
 //! - [`fast_marching_distances`]: first-order fast marching on the triangles with a
 //!   virtual-point-source two-neighbour update (exact for a point source in a flat region),
-//!   falling back to edge updates where the update is not causal. The accurate reference for
-//!   evaluation.
+//!   obtuse corners split by unfolding (Kimmel–Sethian), edge updates where no causal update
+//!   exists. The accurate reference for evaluation; [`FastMarchingSolver`] caches the per-mesh
+//!   precomputation for many queries.
 //! - [`dijkstra_distances`]: shortest paths along edges, an upper bound.
 //! - [`farthest_point_sampling_euclidean`], [`farthest_point_sampling_geodesic`]:
 //!   deterministic greedy farthest point sampling.
@@ -20,25 +21,50 @@
 //!
 //! Release build, errors in mesh units (`tests/geodesic.rs` asserts bounds slightly above these):
 //!
-//! | mesh | method | mean abs error | max abs error | other |
+//! | mesh | method | mean abs error | max abs error | max relative error (r > 0.1) |
 //! |---|---|---|---|---|
-//! | unit sphere, icosphere(5), 10,242 vertices | heat (t = h²) | MEAN_HEAT_SPHERE | MAX_HEAT_SPHERE | |
-//! | unit sphere, icosphere(5) | fast marching | MEAN_FMM_SPHERE | MAX_FMM_SPHERE | |
-//! | unit sphere, icosphere(5) | Dijkstra | MEAN_DIJ_SPHERE | MAX_DIJ_SPHERE | |
-//! | unit square, 61×61 grid, centre source | heat (t = h², Average) | | | REL_HEAT_GRID |
-//! | unit square, 61×61 grid | fast marching | | | REL_FMM_GRID |
-//! | unit square, 61×61 grid | Dijkstra | | | REL_DIJ_GRID |
+//! | unit sphere, `icosphere(5, 1.0)`, 10,242 vertices | heat, t = h² | 8.7e-3 | 1.9e-2 | |
+//! | same | fast marching | 2.9e-3 | 2.3e-2 | |
+//! | same | Dijkstra | 1.2e-1 | 2.0e-1 | |
+//! | unit square, `grid_plane(61, 61, 1.0, 1.0)`, centre source | heat, t = h², `Average` | | | 3.1 % |
+//! | same | heat, `Neumann` | | | 3.1 % |
+//! | same | heat, `Dirichlet` | | | 5.7 % |
+//! | same grid, source mid-way along one side | heat, `Average` / `Neumann` | | | 3.3 % |
+//! | same | heat, `Dirichlet` | | | 34 % |
+//! | same | fast marching | | | 5e-16 (exact in the plane) |
+//! | same | Dijkstra | | | 8.2 % |
+//! | same grid, interior vertices jittered ±0.35 h (obtuse triangles) | fast marching | | | 3.1 % (mean 0.01 %) |
+//! | same | heat, `Average` | | | 4.3 % |
+//! | same | Dijkstra | | | 14 % |
+//!
+//! On TOSCA `wolf0` (4,344 vertices) heat and fast marching differ by 0.9–1.4 % of `√area` on
+//! average (max 2.6–6.5 %) over four sources.
+//!
+//! potpourri3d's `MeshHeatMethodDistanceSolver(V, F, t_coef=1.0)` on the same icosphere:
+//! mean 8.9e-3, max 1.9e-2 (`use_robust=True`).
+//!
+//! # Speed
+//!
+//! `benches/geodesic.rs`, tori of 5,000 / 20,000 / 49,928 vertices, release, on a shared 2-core
+//! machine under heavy load (absolute times noisy; ratios from back-to-back runs): setup
+//! 48 / 233 / 800 ms and 50 sources as one block 62 / 365 / 948 ms, against potpourri3d's
+//! setup 103 / 414 / 1726 ms and 50 `compute_distance` calls 286 / 881 / 2612 ms, i.e. about
+//! 2× faster setup and 2.4–4.6× faster queries. Solving the 50 sources one at a time costs
+//! 1.7–2.5× more than one block.
 //!
 //! Sphere errors are against the great-circle distance `acos(p·q)` from vertex 0; grid errors are
 //! the maximum relative error against the Euclidean distance over vertices farther than 0.1
 //! from the source.
+
+// Negated float comparisons (`!(x > 0.0)`) are deliberate throughout: they treat NaN as failure.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 mod exact;
 mod fps;
 mod heat;
 mod topology;
 
-pub use exact::{dijkstra_distances, fast_marching_distances};
+pub use exact::{dijkstra_distances, fast_marching_distances, FastMarchingSolver};
 pub use fps::{
     farthest_from_centroid, farthest_point_sampling_euclidean, farthest_point_sampling_geodesic,
     SamplingMetric,

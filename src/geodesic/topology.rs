@@ -77,13 +77,13 @@ pub(crate) fn vertex_components(mesh: &Mesh) -> Vec<usize> {
     let mut label = vec![usize::MAX; n];
     let mut next = 0;
     let mut out = vec![0; n];
-    for v in 0..n {
+    for (v, o) in out.iter_mut().enumerate() {
         let r = find(&mut parent, v);
         if label[r] == usize::MAX {
             label[r] = next;
             next += 1;
         }
-        out[v] = label[r];
+        *o = label[r];
     }
     out
 }
