@@ -19,6 +19,7 @@ use faer::Mat;
 use serde::{Deserialize, Serialize};
 
 use crate::{
+    descriptor::{orientation_descriptors, wks_filter_sq},
     fmap::{self, FmapParams, SoftCorrespondence},
     forest::Prediction,
     geodesic::{farthest_point_sampling_euclidean, HeatMethodSolver, HeatParams},
@@ -150,6 +151,12 @@ pub struct DenseMap {
     pub fmap: Mat<f64>,
     /// The sparse consistent matches chosen by the game.
     pub matches: Vec<VertexMatch>,
+    /// Weighted mean agreement (in [−1, 1]) of the orientation descriptors at the matches:
+    /// positive for an orientation-preserving match set, negative for a mirror image.
+    pub orientation_score: f64,
+    /// Whether the first equilibrium of the game was a mirror image and was replaced by the
+    /// orientation-preserving one.
+    pub mirror_rejected: bool,
     /// Time per stage.
     pub timings: RegularizerTimings,
 }
@@ -264,8 +271,61 @@ pub fn regularize(
 
     // 4. Game.
     let t0 = Instant::now();
-    let game =
-        game_theoretic_matching(&candidates, &d_test, samples.len(), &d_ref, ref_points.len(), &params.matcher)?;
+    let energies = orientation_energies(&reference.spectrum);
+    let o_test =
+        orientation_descriptors(&test.mesh, orientation_functions(&test.spectrum, &energies).as_ref());
+    let o_ref = orientation_descriptors(
+        &reference.mesh,
+        orientation_functions(&reference.spectrum, &energies).as_ref(),
+    );
+    let n_pairs = o_test.len() / test.mesh.n_vertices().max(1);
+    let agreement = |m: usize, r: usize| {
+        cosine(&o_test[m * n_pairs..(m + 1) * n_pairs], &o_ref[r * n_pairs..(r + 1) * n_pairs])
+    };
+    let group_score = |g: &crate::matching::GameMatching| {
+        let (mut num, mut den) = (0.0, 0.0);
+        for m in &g.matches {
+            num += m.weight * agreement(samples[m.test], ref_points[m.reference]);
+            den += m.weight;
+        }
+        if den > 0.0 {
+            num / den
+        } else {
+            0.0
+        }
+    };
+    let mut game = game_theoretic_matching(
+        &candidates,
+        &d_test,
+        samples.len(),
+        &d_ref,
+        ref_points.len(),
+        &params.matcher,
+    )?;
+    let mut orientation_score = group_score(&game);
+    let mut mirror_rejected = false;
+    if orientation_score < 0.0 {
+        // The equilibrium is a mirror image: play again among orientation-preserving candidates.
+        let kept: Vec<Candidate> = candidates
+            .iter()
+            .copied()
+            .filter(|c| agreement(samples[c.test], ref_points[c.reference]) > 0.0)
+            .collect();
+        let second = game_theoretic_matching(
+            &kept,
+            &d_test,
+            samples.len(),
+            &d_ref,
+            ref_points.len(),
+            &params.matcher,
+        )?;
+        let second_score = group_score(&second);
+        if second_score > orientation_score && !second.matches.is_empty() {
+            game = second;
+            orientation_score = second_score;
+            mirror_rejected = true;
+        }
+    }
     timings.matching_s = t0.elapsed().as_secs_f64();
 
     // 5. Functional maps.
@@ -276,7 +336,8 @@ pub fn regularize(
     let a_fields = Mat::from_fn(test.mesh.n_vertices(), s, |v, j| {
         test_fields[(v, game.matches[j].test)] / test.sqrt_area()
     });
-    let b_fields = Mat::from_fn(n_ref, s, |v, j| ref_fields[(v, game.matches[j].reference)] / reference.sqrt_area());
+    let b_fields =
+        Mat::from_fn(n_ref, s, |v, j| ref_fields[(v, game.matches[j].reference)] / reference.sqrt_area());
     let a = fmap::spectral_coefficients(&test.spectrum, kt, a_fields.as_ref())?;
     let b = fmap::spectral_coefficients(&reference.spectrum, kr, b_fields.as_ref())?;
     let weights: Vec<f64> = game.matches.iter().map(|m| m.weight).collect();
@@ -303,7 +364,8 @@ pub fn regularize(
         Some(z) if kt == kr => {
             let t0 = Instant::now();
             let k_final = z.k_final.min(test.spectrum.k()).min(reference.spectrum.k());
-            let (_, refined) = fmap::zoomout(&test.spectrum, &reference.spectrum, c.as_ref(), k_final, z.step)?;
+            let (_, refined) =
+                fmap::zoomout(&test.spectrum, &reference.spectrum, c.as_ref(), k_final, z.step)?;
             timings.zoomout_s = t0.elapsed().as_secs_f64();
             Some(refined)
         }
@@ -316,7 +378,19 @@ pub fn regularize(
         .iter()
         .map(|m| VertexMatch { test: samples[m.test], reference: ref_points[m.reference], weight: m.weight })
         .collect();
-    Ok(DenseMap { map, spectral_map, fmap_map, refined_map, forest_map, fmap_predicted, fmap: c, matches, timings })
+    Ok(DenseMap {
+        map,
+        spectral_map,
+        fmap_map,
+        refined_map,
+        forest_map,
+        fmap_predicted,
+        fmap: c,
+        matches,
+        orientation_score,
+        mirror_rejected,
+        timings,
+    })
 }
 
 /// For each test vertex, the candidate reference vertex whose normalised distances to the
@@ -348,4 +422,57 @@ fn anchor_consistent_map(
             best.1
         })
         .collect()
+}
+
+/// Log-energies of the band-pass functions behind the orientation descriptors: five, spread
+/// over the low part of the reference spectrum (eigenvalues 1 to ~30), where descriptors are
+/// smooth enough for stable gradients.
+fn orientation_energies(reference: &Spectrum) -> Vec<f64> {
+    let lam = &reference.eigenvalues;
+    let first = lam.iter().position(|&l| l > 1e-9 * lam.last().copied().unwrap_or(1.0)).unwrap_or(0);
+    let last = (first + 30).min(lam.len().saturating_sub(1));
+    let (lo, hi) = (lam[first].max(1e-12).ln(), lam[last].max(1e-12).ln());
+    (0..5).map(|i| lo + (hi - lo) * (i as f64 + 0.5) / 5.0).collect()
+}
+
+/// Band-pass (WKS-like) functions at the given log-energies, normalised per energy.
+fn orientation_functions(spectrum: &Spectrum, energies: &[f64]) -> Mat<f64> {
+    let sigma = if energies.len() > 1 {
+        (energies[energies.len() - 1] - energies[0]) / (energies.len() - 1) as f64
+    } else {
+        1.0
+    };
+    let n = spectrum.n_vertices;
+    let mut f = Mat::zeros(n, energies.len());
+    for (c, &e) in energies.iter().enumerate() {
+        let w: Vec<f64> = spectrum
+            .eigenvalues
+            .iter()
+            .map(|&l| if l > 0.0 { wks_filter_sq(e, l, sigma) } else { 0.0 })
+            .collect();
+        let norm: f64 = w.iter().sum::<f64>().max(f64::MIN_POSITIVE);
+        for (k, &wk) in w.iter().enumerate() {
+            if wk > 1e-12 * norm {
+                let phi = spectrum.phi(k);
+                for v in 0..n {
+                    f[(v, c)] += wk / norm * phi[v] * phi[v];
+                }
+            }
+        }
+    }
+    f
+}
+
+fn cosine(a: &[f64], b: &[f64]) -> f64 {
+    let (mut ab, mut aa, mut bb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        ab += x * y;
+        aa += x * x;
+        bb += y * y;
+    }
+    if aa > 0.0 && bb > 0.0 {
+        ab / (aa * bb).sqrt()
+    } else {
+        0.0
+    }
 }
