@@ -263,18 +263,58 @@ fn report_sizes_and_times() {
         let t = std::time::Instant::now();
         let c = creature_template(&params(target)).expect("template");
         let dt = t.elapsed().as_secs_f64();
-        let t2 = std::time::Instant::now();
-        let fam_shape = c.random_shape(0, 1, 1.0, 0.0).expect("pose");
-        let dt2 = t2.elapsed().as_secs_f64();
         let edges = assert_closed_oriented(&c.mesh);
-        let (mean, max) = edge_distortion(&c.mesh, &fam_shape, &edges);
+        let t2 = std::time::Instant::now();
+        let poses: Vec<Mesh> = (1..=5).map(|k| c.random_shape(0, k, 1.0, 0.0).expect("pose")).collect();
+        let dt2 = t2.elapsed().as_secs_f64() / 5.0;
+        let (mut mean, mut max) = (0.0, 0.0f64);
+        let mut all: Vec<f64> = Vec::new();
+        for pose in &poses {
+            let (m, x) = edge_distortion(&c.mesh, pose, &edges);
+            mean += m / 5.0;
+            max = max.max(x);
+            all.extend(edges.iter().map(|&(i, j)| {
+                let la = len(sub(c.mesh.vertices[i], c.mesh.vertices[j]));
+                (len(sub(pose.vertices[i], pose.vertices[j])) - la).abs() / la
+            }));
+        }
+        all.sort_by(f64::total_cmp);
+        let p99 = all[all.len() * 99 / 100];
         println!(
-            "target {target}: {} vertices, {} faces, template {dt:.3} s, pose {dt2:.4} s, min angle {:.1}°, pose edge change mean {:.2}% max {:.1}%",
+            "target {target}: {} vertices, {} faces, template {dt:.3} s, pose {dt2:.4} s, min angle {:.1}°, \
+             5 poses: edge change mean {:.2}% p99 {:.1}% max {:.1}%",
             c.mesh.n_vertices(),
             c.mesh.n_faces(),
             min_angle_deg(&c.mesh),
             100.0 * mean,
+            100.0 * p99,
             100.0 * max
         );
     }
+}
+
+/// The point of near-isometric poses: the Laplace spectrum (what WKS is built from) barely
+/// moves under a pose, but moves clearly under the non-isometric variant.
+#[test]
+fn low_spectrum_is_stable_under_poses_not_under_rescaling() {
+    use shapeforest::spectral::dense_spectrum;
+    let p = params(1000);
+    let creature = creature_template(&p).expect("template");
+    let pose = creature.random_shape(5, 1, 1.0, 0.0).expect("pose");
+    let fat = creature.random_shape(5, 1, 0.0, 0.3).expect("non-isometric");
+    let k = 9;
+    let s0 = dense_spectrum(&creature.mesh, k).expect("spectrum");
+    let s1 = dense_spectrum(&pose, k).expect("spectrum");
+    let s2 = dense_spectrum(&fat, k).expect("spectrum");
+    assert!(s0.eigenvalues[0].abs() < 1e-8 && s0.eigenvalues[1] > 1e-3, "one connected component");
+    let rel = |a: &[f64], b: &[f64]| (1..k).map(|i| (a[i] - b[i]).abs() / a[i]).sum::<f64>() / (k - 1) as f64;
+    let d_pose = rel(&s0.eigenvalues, &s1.eigenvalues);
+    let d_fat = rel(&s0.eigenvalues, &s2.eigenvalues);
+    println!(
+        "mean relative change of λ1..λ8: pose {:.2}%, non-isometric {:.2}%",
+        100.0 * d_pose,
+        100.0 * d_fat
+    );
+    assert!(d_pose < 0.05, "pose changed the spectrum by {d_pose}");
+    assert!(d_fat > 2.0 * d_pose, "non-isometric change {d_fat} not larger than pose change {d_pose}");
 }

@@ -10,14 +10,17 @@
 //!
 //! # Coordinates and symmetry
 //! `x` points to the creature's right, `y` up and `z` forward (the head is at `+z`); the body is
-//! about 3.8 units long, 2.2 tall and 1.0 wide, with the feet near `y = −1.24`. The template is
+//! about 3.8 units long, 2.2 tall and 1.0 wide, with the soles near `y = −1.26`. The template is
 //! exactly mirror-symmetric about the plane `x = 0`: `symmetry[i]` is the vertex at the mirror
 //! image of vertex `i` (bit-exact: `x` negated, `y` and `z` equal), `symmetry` is an involution,
 //! and its fixed points are the vertices lying on the plane.
 //!
 //! # Deformations
-//! Shapes are deformed by linear blend skinning of a 13-bone skeleton (one bone per part, see
-//! the `skinning` module's documentation): every non-root joint turns by random angles up to
+//! Shapes are deformed by linear blend skinning of a 13-bone skeleton, one bone per part, each
+//! rotating about a joint at the start of its part (hips and shoulders inside the torso, knees,
+//! neck base, head, tail base and middle). Skinning weights are `exp(−(d_b − d_min)/τ)`,
+//! normalised, with `d_b` the distance to part `b`'s round cone and `τ = 0.1`, so they blend
+//! smoothly across joints. Every non-root joint turns by random angles up to
 //! `pose_amplitude` times a per-joint limit (knees 0.5 rad, hips 0.35 rad, neck 0.35–0.4 rad,
 //! tail 0.4–0.5 rad), which keeps the shapes near-isometric and free of gross self-intersections. With
 //! `non_isometric = s > 0` each bone is also scaled by random factors in `[e^{−s}, e^{s}]`
@@ -59,8 +62,9 @@ pub const PART_NAMES: [&str; 13] = [
 /// Smallest accepted `target_vertices`: below it the thin parts (tail tip, lower legs) are
 /// thinner than the sampling grid.
 pub const MIN_TARGET_VERTICES: usize = 800;
-/// Largest accepted `target_vertices`.
-pub const MAX_TARGET_VERTICES: usize = 1_000_000;
+/// Largest accepted `target_vertices` (the sampling grid grows as `target^{3/2}`: about 30 M
+/// samples, 0.4 GB, at this size).
+pub const MAX_TARGET_VERTICES: usize = 200_000;
 
 /// Blend radius of the smooth union of the body parts.
 const BLEND: f64 = 0.12;
@@ -106,7 +110,7 @@ impl CreatureParams {
             return Err(SynthError::InvalidParameter {
                 name: "target_vertices",
                 value: self.target_vertices.to_string(),
-                expected: "an integer in 800..=1000000",
+                expected: "an integer in 800..=200000",
             });
         }
         if !(self.pose_amplitude.is_finite() && (0.0..=2.0).contains(&self.pose_amplitude)) {
