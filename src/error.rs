@@ -21,6 +21,12 @@ pub enum Error {
     /// Training, predicting with, or storing a random forest failed.
     #[error(transparent)]
     Forest(#[from] crate::forest::ForestError),
+    /// Sparse matching failed.
+    #[error(transparent)]
+    Matching(#[from] crate::matching::MatchingError),
+    /// A functional-map computation failed.
+    #[error(transparent)]
+    Fmap(#[from] crate::fmap::FmapError),
     /// Generating a synthetic shape failed.
     #[error(transparent)]
     Synth(#[from] crate::synth::SynthError),

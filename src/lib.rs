@@ -14,6 +14,10 @@
 //! | [`descriptor`] | heat and wave kernel signatures, and the parametric WKS `p(m; e, k̄)` the forest splits on |
 //! | [`geodesic`] | heat-method geodesic distances, exact graph distances, farthest point sampling |
 //! | [`forest`] | random forest over parametric WKS: training, prediction, model files |
+//! | [`matching`] | game-theoretic sparse matching (replicator dynamics) |
+//! | [`fmap`] | functional maps: soft map in Laplace bases, regularised solve, point-to-point, ZoomOut |
+//! | [`eval`] | geodesic error of maps, cumulative curves, CSV and SVG reports |
+//! | [`regularizer`] | forest posterior → consistent matches → regularised functional map → dense map |
 //! | [`synth`] | deterministic synthetic shape families with known correspondence and test primitives |
 //!
 //! Conventions used throughout:
@@ -24,9 +28,13 @@
 
 pub mod descriptor;
 pub mod error;
+pub mod eval;
+pub mod fmap;
 pub mod forest;
 pub mod geodesic;
+pub mod matching;
 pub mod mesh;
+pub mod regularizer;
 pub mod spectral;
 pub mod synth;
 

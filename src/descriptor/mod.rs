@@ -24,10 +24,12 @@
 //! zero when it is at most `1e-8 · λ_max` (see [`first_nonzero_eigenvalue`]).
 
 mod hks;
+mod orientation;
 mod parametric;
 mod wks;
 
 pub use hks::{heat_kernel_signature, hks_times, HksParams};
+pub use orientation::orientation_descriptors;
 pub use parametric::{dot_f32, EnergyGrid, ParametricWks};
 pub use wks::{wave_kernel_signature, wks_filter_sq, EnergyRange, WksParams};
 

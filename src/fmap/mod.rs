@@ -1,0 +1,492 @@
+//! Functional maps: the forest's soft correspondence expressed in truncated Laplace bases, its
+//! regularisation by sparse geodesic-consistent matches, and conversion to a point-to-point map.
+//!
+//! Conventions. `C` is the `k_test × k_ref` matrix that **pulls functions back** from the
+//! reference shape R to the test shape M in the spectral bases: if `g = Φ_R b` on R then
+//! `g ∘ T ≈ Φ_M (C b)` on M, where `T: M → R` is the correspondence. With a soft map
+//! `P(r | m)` (the forest's left-stochastic posterior), `C_pred = Φ_Mᵀ M_M Π Φ_R` with
+//! `Π_mr = P(r | m)`. Bases are M-orthonormal and of the unit-area shapes; distances are
+//! normalised by √area before projection.
+//!
+//! The regularised map (Rodolà et al., eq. 11.19) solves
+//! `min_C ‖C − C_pred‖²_F + α Σ_j ω_j ‖C b_j − a_j‖² + μ ‖C Λ_R − Λ_M C‖²_F`
+//! where `a_j`, `b_j` are the coefficients of the geodesic distance maps from the `j`-th
+//! matched pair `(p_j, q_j)` on M and R, and `ω_j` its confidence. The problem separates by
+//! rows of C into `k_test` small symmetric positive definite systems, solved exactly.
+//!
+//! Point-to-point: `T(m) = argmin_r ‖(Φ_M C)_m − (Φ_R)_r‖` (nearest neighbour in the spectral
+//! embedding), by blocked brute force on matrix products (at ~30–100 dimensions it beats
+//! kd-trees; see NOTES). [`zoomout`] refines a map by spectral upsampling (Melzi et al. 2019).
+
+use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par, Side};
+use rayon::prelude::*;
+use thiserror::Error;
+
+use crate::spectral::Spectrum;
+
+/// A functional-map computation failed.
+#[derive(Debug, Error)]
+pub enum FmapError {
+    /// More basis functions were asked for than the spectrum holds.
+    #[error("asked for {wanted} basis functions, the {which} spectrum has {available}")]
+    BasisTooSmall {
+        /// Which shape.
+        which: &'static str,
+        /// Basis size asked for.
+        wanted: usize,
+        /// Eigenpairs available.
+        available: usize,
+    },
+    /// Input sizes do not agree.
+    #[error("size mismatch: {0}")]
+    SizeMismatch(String),
+    /// A parameter is invalid.
+    #[error("invalid functional-map parameter `{name}`: {reason}")]
+    InvalidParameter {
+        /// Parameter name.
+        name: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// The least-squares system could not be factorised.
+    #[error("the regularised least-squares system is not positive definite")]
+    NotPositiveDefinite,
+}
+
+/// A soft correspondence from test vertices to reference vertices: for each test vertex, a
+/// sparse distribution `(reference vertex, probability)`.
+pub trait SoftCorrespondence: Sync {
+    /// Number of test vertices.
+    fn n_test_vertices(&self) -> usize;
+    /// Calls `f(reference_vertex, probability)` for every non-zero entry of test vertex `m`.
+    fn for_each_entry(&self, m: usize, f: &mut dyn FnMut(usize, f64));
+}
+
+/// A plain point-to-point map viewed as a (hard) soft correspondence.
+impl SoftCorrespondence for [usize] {
+    fn n_test_vertices(&self) -> usize {
+        self.len()
+    }
+    fn for_each_entry(&self, m: usize, f: &mut dyn FnMut(usize, f64)) {
+        f(self[m], 1.0)
+    }
+}
+
+fn check_basis(which: &'static str, s: &Spectrum, k: usize) -> Result<(), FmapError> {
+    if k == 0 || k > s.k() {
+        return Err(FmapError::BasisTooSmall { which, wanted: k, available: s.k() });
+    }
+    Ok(())
+}
+
+/// First `k` eigenvectors of a spectrum as an `n × k` view.
+pub fn basis(s: &Spectrum, k: usize) -> MatRef<'_, f64> {
+    s.vectors().subcols(0, k.min(s.k()))
+}
+
+/// Spectral coefficients `Φ[:, :k]ᵀ M F` of the columns of `functions` (`n × s`), → `k × s`.
+///
+/// ```
+/// use shapeforest::{fmap::spectral_coefficients, spectral::dense_spectrum, synth::icosphere};
+/// let s = dense_spectrum(&icosphere(2, 1.0), 9).unwrap();
+/// // The coefficients of φ_3 are the unit vector e_3 (M-orthonormality).
+/// let f = faer::Mat::from_fn(s.n_vertices, 1, |i, _| s.phi(3)[i]);
+/// let c = spectral_coefficients(&s, 9, f.as_ref()).unwrap();
+/// assert!((c[(3, 0)] - 1.0).abs() < 1e-9 && c[(0, 0)].abs() < 1e-9);
+/// ```
+pub fn spectral_coefficients(
+    s: &Spectrum,
+    k: usize,
+    functions: MatRef<'_, f64>,
+) -> Result<Mat<f64>, FmapError> {
+    check_basis("given", s, k)?;
+    if functions.nrows() != s.n_vertices {
+        return Err(FmapError::SizeMismatch(format!(
+            "functions have {} rows, the shape has {} vertices",
+            functions.nrows(),
+            s.n_vertices
+        )));
+    }
+    let weighted = Mat::from_fn(functions.nrows(), functions.ncols(), |i, j| s.mass[i] * functions[(i, j)]);
+    let mut out = Mat::zeros(k, functions.ncols());
+    matmul(out.as_mut(), Accum::Replace, basis(s, k).transpose(), weighted.as_ref(), 1.0, Par::rayon(0));
+    Ok(out)
+}
+
+/// The functional map `C = Φ_M[:, :k_test]ᵀ M_M Π Φ_R[:, :k_ref]` of a soft correspondence
+/// `Π` from the test shape to the reference shape (see the module conventions).
+pub fn pullback_fmap<S: SoftCorrespondence + ?Sized>(
+    test: &Spectrum,
+    reference: &Spectrum,
+    k_test: usize,
+    k_ref: usize,
+    soft: &S,
+) -> Result<Mat<f64>, FmapError> {
+    check_basis("test", test, k_test)?;
+    check_basis("reference", reference, k_ref)?;
+    if soft.n_test_vertices() != test.n_vertices {
+        return Err(FmapError::SizeMismatch(format!(
+            "the correspondence covers {} test vertices, the test shape has {}",
+            soft.n_test_vertices(),
+            test.n_vertices
+        )));
+    }
+    let n = test.n_vertices;
+    let phi_r = reference.vectors();
+    // Rows of Π Φ_R, then C = Φ_Mᵀ diag(mass) (Π Φ_R).
+    let mut pulled = Mat::<f64>::zeros(n, k_ref);
+    let mut bad = None;
+    for m in 0..n {
+        soft.for_each_entry(m, &mut |r, p| {
+            if r >= reference.n_vertices {
+                bad = Some(r);
+                return;
+            }
+            for j in 0..k_ref {
+                pulled[(m, j)] += p * phi_r[(r, j)];
+            }
+        });
+    }
+    if let Some(r) = bad {
+        return Err(FmapError::SizeMismatch(format!(
+            "the correspondence names reference vertex {r}, the reference has {}",
+            reference.n_vertices
+        )));
+    }
+    for m in 0..n {
+        for j in 0..k_ref {
+            pulled[(m, j)] *= test.mass[m];
+        }
+    }
+    let mut c = Mat::zeros(k_test, k_ref);
+    matmul(c.as_mut(), Accum::Replace, basis(test, k_test).transpose(), pulled.as_ref(), 1.0, Par::rayon(0));
+    Ok(c)
+}
+
+/// Weights of the regularised functional-map problem.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FmapParams {
+    /// Basis size on the test shape. Default 40.
+    pub k_test: usize,
+    /// Basis size on the reference shape. Default 40.
+    pub k_ref: usize,
+    /// Weight α of the distance-map term. Default 1.
+    pub match_weight: f64,
+    /// Weight μ of the Laplacian commutativity term (eigenvalues normalised by the largest one
+    /// used). Default 0 (off), as in the paper's main experiments.
+    pub commutativity: f64,
+}
+
+impl Default for FmapParams {
+    fn default() -> Self {
+        Self { k_test: 40, k_ref: 40, match_weight: 1.0, commutativity: 0.0 }
+    }
+}
+
+impl FmapParams {
+    /// Checks the parameters, naming the rule that is broken.
+    pub fn check(&self) -> Result<(), FmapError> {
+        let bad = |name, reason: &str| Err(FmapError::InvalidParameter { name, reason: reason.into() });
+        if self.k_test == 0 || self.k_ref == 0 {
+            return bad("k_test/k_ref", "basis sizes must be at least 1");
+        }
+        if !(self.match_weight >= 0.0 && self.match_weight.is_finite()) {
+            return bad("match_weight", "must be a finite number ≥ 0");
+        }
+        if !(self.commutativity >= 0.0 && self.commutativity.is_finite()) {
+            return bad("commutativity", "must be a finite number ≥ 0");
+        }
+        Ok(())
+    }
+}
+
+/// Solves the regularised problem of the module documentation exactly.
+///
+/// `c_pred`: `k_test × k_ref`; `a`: `k_test × s` test distance-map coefficients; `b`:
+/// `k_ref × s` reference ones; `weights`: `s` confidences; `lambda_test`/`lambda_ref`: the
+/// eigenvalues (at least `k_test` / `k_ref` of them).
+///
+/// ```
+/// use faer::Mat;
+/// use shapeforest::fmap::{solve_regularised_fmap, FmapParams};
+/// // Without constraints the solution is the prediction itself.
+/// let c_pred = Mat::from_fn(3, 3, |i, j| (i * 3 + j) as f64);
+/// let p = FmapParams { k_test: 3, k_ref: 3, ..Default::default() };
+/// let c = solve_regularised_fmap(c_pred.as_ref(), Mat::zeros(3, 0).as_ref(), Mat::zeros(3, 0).as_ref(), &[], &[0.0, 1.0, 2.0], &[0.0, 1.0, 2.0], &p).unwrap();
+/// assert!((&c - &c_pred).norm_l2() < 1e-12);
+/// ```
+pub fn solve_regularised_fmap(
+    c_pred: MatRef<'_, f64>,
+    a: MatRef<'_, f64>,
+    b: MatRef<'_, f64>,
+    weights: &[f64],
+    lambda_test: &[f64],
+    lambda_ref: &[f64],
+    params: &FmapParams,
+) -> Result<Mat<f64>, FmapError> {
+    params.check()?;
+    let (kt, kr) = (c_pred.nrows(), c_pred.ncols());
+    let s = weights.len();
+    if a.nrows() != kt || b.nrows() != kr || a.ncols() != s || b.ncols() != s {
+        return Err(FmapError::SizeMismatch(format!(
+            "C_pred {kt}×{kr}, A {}×{}, B {}×{}, {s} weights",
+            a.nrows(),
+            a.ncols(),
+            b.nrows(),
+            b.ncols()
+        )));
+    }
+    if lambda_test.len() < kt || lambda_ref.len() < kr {
+        return Err(FmapError::SizeMismatch("fewer eigenvalues than basis functions".into()));
+    }
+    // G = α Σ ω_j b_j b_jᵀ ; R = α Σ ω_j a_j b_jᵀ (row i of R is the right-hand side addition).
+    let bw = Mat::from_fn(kr, s, |i, j| params.match_weight * weights[j] * b[(i, j)]);
+    let mut g = Mat::zeros(kr, kr);
+    matmul(g.as_mut(), Accum::Replace, bw.as_ref(), b.transpose(), 1.0, Par::Seq);
+    let mut rhs_add = Mat::zeros(kt, kr);
+    matmul(rhs_add.as_mut(), Accum::Replace, a, bw.transpose(), 1.0, Par::Seq);
+    let scale =
+        lambda_test[..kt].iter().chain(&lambda_ref[..kr]).fold(0f64, |m, &l| m.max(l.abs())).max(1e-300);
+    let mut c = Mat::zeros(kt, kr);
+    for i in 0..kt {
+        let mut sys = g.clone();
+        for j in 0..kr {
+            let d = (lambda_ref[j] - lambda_test[i]) / scale;
+            sys[(j, j)] += 1.0 + params.commutativity * d * d;
+        }
+        let llt = sys.llt(Side::Lower).map_err(|_| FmapError::NotPositiveDefinite)?;
+        let rhs = Mat::from_fn(kr, 1, |j, _| c_pred[(i, j)] + rhs_add[(i, j)]);
+        let sol = faer::linalg::solvers::Solve::solve(&llt, rhs.as_ref());
+        for j in 0..kr {
+            c[(i, j)] = sol[(j, 0)];
+        }
+    }
+    Ok(c)
+}
+
+/// For each row of `queries` (`q × d`), the index of the nearest row of `points` (`p × d`) in
+/// Euclidean distance. Blocked brute force on matrix products, parallel over query blocks.
+///
+/// ```
+/// use faer::mat;
+/// let pts = mat![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]];
+/// let q = mat![[0.9, 0.2], [0.1, 0.8], [0.0, 0.1]];
+/// assert_eq!(shapeforest::fmap::nearest_rows(q.as_ref(), pts.as_ref()), vec![1, 2, 0]);
+/// ```
+pub fn nearest_rows(queries: MatRef<'_, f64>, points: MatRef<'_, f64>) -> Vec<usize> {
+    assert_eq!(queries.ncols(), points.ncols(), "nearest_rows: dimensions differ");
+    const QB: usize = 256;
+    const PB: usize = 2048;
+    let (nq, np) = (queries.nrows(), points.nrows());
+    if np == 0 {
+        return vec![0; nq];
+    }
+    let point_sq: Vec<f64> =
+        (0..np).map(|r| (0..points.ncols()).map(|c| points[(r, c)].powi(2)).sum()).collect();
+    let mut out = vec![0usize; nq];
+    out.par_chunks_mut(QB).enumerate().for_each(|(blk, chunk)| {
+        let q0 = blk * QB;
+        let qb = chunk.len();
+        let qs = queries.subrows(q0, qb);
+        let mut best = vec![f64::INFINITY; qb];
+        let mut prod = Mat::<f64>::zeros(qb, PB);
+        let mut p0 = 0;
+        while p0 < np {
+            let pb = PB.min(np - p0);
+            matmul(
+                prod.as_mut().subcols_mut(0, pb),
+                Accum::Replace,
+                qs,
+                points.subrows(p0, pb).transpose(),
+                1.0,
+                Par::Seq,
+            );
+            for j in 0..pb {
+                let psq = point_sq[p0 + j];
+                let col = prod.col(j);
+                for i in 0..qb {
+                    // ‖q − p‖² − ‖q‖² = ‖p‖² − 2 q·p
+                    let d = psq - 2.0 * col[i];
+                    if d < best[i] {
+                        best[i] = d;
+                        chunk[i] = p0 + j;
+                    }
+                }
+            }
+            p0 += pb;
+        }
+    });
+    out
+}
+
+/// Point-to-point map `T: M → R` (test vertex → reference vertex) of a functional map `C`
+/// (`k_test × k_ref`, pulling back from R to M).
+pub fn point_to_point(
+    test: &Spectrum,
+    reference: &Spectrum,
+    c: MatRef<'_, f64>,
+) -> Result<Vec<usize>, FmapError> {
+    let (kt, kr) = (c.nrows(), c.ncols());
+    check_basis("test", test, kt)?;
+    check_basis("reference", reference, kr)?;
+    let mut emb = Mat::zeros(test.n_vertices, kr);
+    matmul(emb.as_mut(), Accum::Replace, basis(test, kt), c, 1.0, Par::rayon(0));
+    Ok(nearest_rows(emb.as_ref(), basis(reference, kr)))
+}
+
+/// Point-to-point map in the other direction, `R → M` (reference vertex → test vertex), of the
+/// same functional map `C`: nearest neighbours of the rows of `Φ_R` among those of `Φ_M C`.
+pub fn point_to_point_reverse(
+    test: &Spectrum,
+    reference: &Spectrum,
+    c: MatRef<'_, f64>,
+) -> Result<Vec<usize>, FmapError> {
+    let (kt, kr) = (c.nrows(), c.ncols());
+    check_basis("test", test, kt)?;
+    check_basis("reference", reference, kr)?;
+    let mut emb = Mat::zeros(test.n_vertices, kr);
+    matmul(emb.as_mut(), Accum::Replace, basis(test, kt), c, 1.0, Par::rayon(0));
+    Ok(nearest_rows(basis(reference, kr), emb.as_ref()))
+}
+
+/// Point-to-point map `T: M → R` restricted to candidates: each test vertex goes to the
+/// candidate reference vertex (from `soft`, e.g. the forest's posterior support) nearest to
+/// its row of `Φ_M C` in the spectral embedding; vertices without candidates fall back to the
+/// unrestricted nearest neighbour. This keeps the precision of the candidates and the global
+/// consistency (e.g. the left/right orientation) of the functional map.
+pub fn point_to_point_restricted<S: SoftCorrespondence + ?Sized>(
+    test: &Spectrum,
+    reference: &Spectrum,
+    c: MatRef<'_, f64>,
+    soft: &S,
+) -> Result<Vec<usize>, FmapError> {
+    let (kt, kr) = (c.nrows(), c.ncols());
+    check_basis("test", test, kt)?;
+    check_basis("reference", reference, kr)?;
+    if soft.n_test_vertices() != test.n_vertices {
+        return Err(FmapError::SizeMismatch(format!(
+            "the candidates cover {} test vertices, the test shape has {}",
+            soft.n_test_vertices(),
+            test.n_vertices
+        )));
+    }
+    let mut emb = Mat::zeros(test.n_vertices, kr);
+    matmul(emb.as_mut(), Accum::Replace, basis(test, kt), c, 1.0, Par::rayon(0));
+    let phi_r = basis(reference, kr);
+    let mut out: Vec<Option<usize>> = vec![None; test.n_vertices];
+    out.par_iter_mut().enumerate().for_each(|(m, slot)| {
+        let mut best = f64::INFINITY;
+        soft.for_each_entry(m, &mut |r, _| {
+            if r < reference.n_vertices {
+                let d: f64 = (0..kr).map(|j| (emb[(m, j)] - phi_r[(r, j)]).powi(2)).sum();
+                if d < best {
+                    best = d;
+                    *slot = Some(r);
+                }
+            }
+        });
+    });
+    let missing: Vec<usize> = (0..test.n_vertices).filter(|&m| out[m].is_none()).collect();
+    if !missing.is_empty() {
+        let queries = Mat::from_fn(missing.len(), kr, |i, j| emb[(missing[i], j)]);
+        for (i, r) in nearest_rows(queries.as_ref(), phi_r).into_iter().enumerate() {
+            out[missing[i]] = Some(r);
+        }
+    }
+    Ok(out.into_iter().map(|r| r.unwrap_or(0)).collect())
+}
+
+/// ZoomOut refinement (Melzi et al., SIGGRAPH Asia 2019): starting from `c` (square, `k0 × k0`),
+/// alternately convert to a point map and re-estimate the map with one more basis function
+/// (every `step`), up to `k_final`. Returns the refined map and its point-to-point map.
+pub fn zoomout(
+    test: &Spectrum,
+    reference: &Spectrum,
+    c: MatRef<'_, f64>,
+    k_final: usize,
+    step: usize,
+) -> Result<(Mat<f64>, Vec<usize>), FmapError> {
+    if c.nrows() != c.ncols() {
+        return Err(FmapError::SizeMismatch("zoomout starts from a square functional map".into()));
+    }
+    if step == 0 {
+        return Err(FmapError::InvalidParameter { name: "step", reason: "must be at least 1".into() });
+    }
+    check_basis("test", test, k_final)?;
+    check_basis("reference", reference, k_final)?;
+    let mut current = c.to_owned();
+    let mut k = c.nrows();
+    let mut map = point_to_point(test, reference, current.as_ref())?;
+    while k < k_final {
+        k = (k + step).min(k_final);
+        current = pullback_fmap(test, reference, k, k, map.as_slice())?;
+        map = point_to_point(test, reference, current.as_ref())?;
+    }
+    Ok((current, map))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{spectral::dense_spectrum, synth::icosphere};
+
+    #[test]
+    fn identity_map_gives_identity_fmap_and_back() {
+        let s = dense_spectrum(&icosphere(2, 1.0), 16).unwrap();
+        let id: Vec<usize> = (0..s.n_vertices).collect();
+        let c = pullback_fmap(&s, &s, 16, 16, id.as_slice()).unwrap();
+        let eye = Mat::<f64>::identity(16, 16);
+        assert!((&c - &eye).norm_l2() < 1e-9);
+        let back = point_to_point(&s, &s, c.as_ref()).unwrap();
+        assert_eq!(back, id);
+        assert_eq!(point_to_point_reverse(&s, &s, c.as_ref()).unwrap(), id);
+    }
+
+    #[test]
+    fn distance_constraints_pull_the_solution() {
+        // A single constraint C b = a with the prediction at zero: C moves towards a bᵀ/(1+|b|²).
+        let c_pred = Mat::<f64>::zeros(2, 2);
+        let a = faer::mat![[1.0], [0.0]];
+        let b = faer::mat![[1.0], [0.0]];
+        let p = FmapParams { k_test: 2, k_ref: 2, match_weight: 3.0, commutativity: 0.0 };
+        let c = solve_regularised_fmap(
+            c_pred.as_ref(),
+            a.as_ref(),
+            b.as_ref(),
+            &[1.0],
+            &[0.0, 1.0],
+            &[0.0, 1.0],
+            &p,
+        )
+        .unwrap();
+        assert!((c[(0, 0)] - 0.75).abs() < 1e-12, "{c:?}");
+        assert!(c[(1, 1)].abs() < 1e-12);
+    }
+
+    #[test]
+    fn nearest_rows_matches_naive_search() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let q = Mat::from_fn(300, 7, |_, _| rng.random::<f64>());
+        let p = Mat::from_fn(2500, 7, |_, _| rng.random::<f64>());
+        let got = nearest_rows(q.as_ref(), p.as_ref());
+        for i in 0..300 {
+            let d = |j: usize| (0..7).map(|c| (q[(i, c)] - p[(j, c)]).powi(2)).sum::<f64>();
+            let best = (0..2500).min_by(|&a, &b| d(a).total_cmp(&d(b))).unwrap();
+            assert!((d(got[i]) - d(best)).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn zoomout_from_a_small_true_map_stays_correct() {
+        let s = dense_spectrum(&icosphere(3, 1.0), 30).unwrap();
+        // A rotation by 90° about z is an isometry; for the exact icosphere it permutes vertices
+        // only approximately, so use the identity with a small noisy start instead.
+        let id: Vec<usize> = (0..s.n_vertices).collect();
+        let c0 = pullback_fmap(&s, &s, 9, 9, id.as_slice()).unwrap();
+        let (c, map) = zoomout(&s, &s, c0.as_ref(), 30, 3).unwrap();
+        assert_eq!(c.nrows(), 30);
+        let correct = map.iter().enumerate().filter(|(i, &j)| *i == j).count();
+        assert_eq!(correct, s.n_vertices);
+    }
+}

@@ -1,0 +1,478 @@
+//! The spatial regulariser of Rodolà et al. (§5 of the method): it turns the forest's fuzzy,
+//! symmetry-confused posterior into a consistent dense point-to-point map.
+//!
+//! 1. `n_samples` (default 50) Euclidean farthest-point samples on the test shape;
+//! 2. candidate matches: each sample with its `top_k` most probable reference points;
+//! 3. geodesic distances among the samples (test) and among the candidate points (reference),
+//!    by the heat method, normalised by √area;
+//! 4. game-theoretic matching picks a sparse, geodesically consistent subset with weights ω;
+//! 5. the regularised functional map (eq. 11.19) with the distance maps of the matched pairs;
+//! 6. conversion to a point-to-point map (nearest neighbour in the spectral embedding), and an
+//!    optional ZoomOut refinement, off by default and reported separately.
+//!
+//! Shapes are prepared once ([`PreparedShape`]: mesh, spectrum, heat-method factorisation), so a
+//! reference serves many test shapes.
+
+use std::{sync::Arc, time::Instant};
+
+use faer::Mat;
+use serde::{Deserialize, Serialize};
+
+use crate::{
+    descriptor::{orientation_descriptors, wks_filter_sq},
+    fmap::{self, FmapParams, SoftCorrespondence},
+    forest::Prediction,
+    geodesic::{farthest_point_sampling_euclidean, HeatMethodSolver, HeatParams},
+    matching::{game_theoretic_matching, Candidate, GameMatcherParams},
+    mesh::Mesh,
+    spectral::Spectrum,
+    Error,
+};
+
+/// A shape ready for regularisation: mesh, spectrum and a heat-method factorisation.
+pub struct PreparedShape {
+    /// The mesh.
+    pub mesh: Arc<Mesh>,
+    /// Its unit-area spectrum.
+    pub spectrum: Arc<Spectrum>,
+    /// Heat-method geodesic solver (factorised once).
+    pub heat: HeatMethodSolver,
+}
+
+impl PreparedShape {
+    /// Prepares a shape: factorises the heat-method matrices.
+    pub fn new(mesh: Arc<Mesh>, spectrum: Arc<Spectrum>, heat: HeatParams) -> Result<Self, Error> {
+        if spectrum.n_vertices != mesh.n_vertices() {
+            return Err(fmap::FmapError::SizeMismatch(format!(
+                "spectrum of {} vertices for a mesh of {}",
+                spectrum.n_vertices,
+                mesh.n_vertices()
+            ))
+            .into());
+        }
+        let heat = HeatMethodSolver::new(&mesh, heat)?;
+        Ok(Self { mesh, spectrum, heat })
+    }
+
+    /// `√area` of the mesh, the unit of normalised distances.
+    pub fn sqrt_area(&self) -> f64 {
+        self.spectrum.area.sqrt()
+    }
+}
+
+/// ZoomOut refinement settings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ZoomOutParams {
+    /// Final basis size.
+    pub k_final: usize,
+    /// Basis functions added per iteration.
+    pub step: usize,
+}
+
+/// Parameters of the regulariser.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegularizerParams {
+    /// Farthest-point samples on the test shape. Default 50 (the paper's choice).
+    pub n_samples: usize,
+    /// Candidate reference points per sample (most probable labels). Default 5.
+    pub top_k: usize,
+    /// Game-theoretic matcher settings.
+    pub matcher: GameMatcherParams,
+    /// Functional-map solve settings.
+    pub fmap: FmapParams,
+    /// Heat-method settings for the distance maps.
+    pub heat: HeatParams,
+    /// Optional ZoomOut refinement after the solve. Default off.
+    pub zoomout: Option<ZoomOutParams>,
+}
+
+impl Default for RegularizerParams {
+    fn default() -> Self {
+        Self {
+            n_samples: 50,
+            top_k: 5,
+            matcher: GameMatcherParams::default(),
+            fmap: FmapParams::default(),
+            heat: HeatParams::default(),
+            zoomout: None,
+        }
+    }
+}
+
+/// A matched pair of vertices with its confidence.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VertexMatch {
+    /// Vertex of the test shape.
+    pub test: usize,
+    /// Vertex of the reference shape.
+    pub reference: usize,
+    /// Confidence in (0, 1].
+    pub weight: f64,
+}
+
+/// Seconds spent in each stage of the regulariser.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RegularizerTimings {
+    /// Farthest point sampling and candidate selection.
+    pub sampling_s: f64,
+    /// Heat-method distance maps on both shapes.
+    pub distances_s: f64,
+    /// Game-theoretic matching.
+    pub matching_s: f64,
+    /// Functional-map assembly and solve.
+    pub fmap_s: f64,
+    /// Point-to-point conversion.
+    pub point_map_s: f64,
+    /// ZoomOut refinement (0 when off).
+    pub zoomout_s: f64,
+}
+
+/// The result of regularising one prediction.
+pub struct DenseMap {
+    /// Test vertex → reference vertex (the regulariser's output): among the forest's candidates
+    /// of each vertex, the one whose geodesic distances to the matched anchors agree best with
+    /// the vertex's own (`Σ_j ω_j |d_M(m, p_j) − d_R(r, q_j)|`, the pointwise form of the
+    /// distance-map term of eq. 11.19); vertices without candidates take the functional map's.
+    pub map: Vec<usize>,
+    /// Test vertex → reference vertex: among the forest's candidates, the one nearest to the
+    /// regularised functional map's spectral embedding.
+    pub spectral_map: Vec<usize>,
+    /// Test vertex → reference vertex from the regularised functional map alone
+    /// (unrestricted nearest neighbour in the spectral embedding).
+    pub fmap_map: Vec<usize>,
+    /// The ZoomOut-refined map, when refinement was asked for.
+    pub refined_map: Option<Vec<usize>>,
+    /// The forest's own maximum-a-posteriori map (test vertex → reference vertex), for
+    /// comparison; `None` where the forest gave no label.
+    pub forest_map: Vec<Option<usize>>,
+    /// The functional map of the raw prediction (`k_test × k_ref`).
+    pub fmap_predicted: Mat<f64>,
+    /// The regularised functional map.
+    pub fmap: Mat<f64>,
+    /// The sparse consistent matches chosen by the game.
+    pub matches: Vec<VertexMatch>,
+    /// Weighted mean agreement (in [−1, 1]) of the orientation descriptors at the matches:
+    /// positive for an orientation-preserving match set, negative for a mirror image.
+    pub orientation_score: f64,
+    /// Whether the first equilibrium of the game was a mirror image and was replaced by the
+    /// orientation-preserving one.
+    pub mirror_rejected: bool,
+    /// Time per stage.
+    pub timings: RegularizerTimings,
+}
+
+/// A forest prediction read through a label → reference-vertex table.
+struct LabelledPosterior<'a> {
+    prediction: &'a Prediction,
+    label_to_vertex: Option<&'a [usize]>,
+}
+
+impl LabelledPosterior<'_> {
+    fn vertex(&self, label: u32) -> usize {
+        match self.label_to_vertex {
+            Some(t) => t[label as usize],
+            None => label as usize,
+        }
+    }
+}
+
+impl SoftCorrespondence for LabelledPosterior<'_> {
+    fn n_test_vertices(&self) -> usize {
+        self.prediction.n_vertices()
+    }
+    fn for_each_entry(&self, m: usize, f: &mut dyn FnMut(usize, f64)) {
+        let (labels, probs) = self.prediction.posterior(m);
+        for (&l, &p) in labels.iter().zip(probs) {
+            f(self.vertex(l), p as f64);
+        }
+    }
+}
+
+/// Symmetrised, normalised distance matrix among `points` from their fields (`n × points`).
+fn pairwise(fields: &Mat<f64>, points: &[usize], scale: f64) -> Vec<f64> {
+    let s = points.len();
+    let mut d = vec![0.0; s * s];
+    for i in 0..s {
+        for j in 0..s {
+            d[i * s + j] = 0.5 * (fields[(points[j], i)] + fields[(points[i], j)]) / scale;
+        }
+    }
+    d
+}
+
+/// Regularises a forest prediction for `test` against `reference`.
+///
+/// `label_to_vertex` maps forest labels to reference vertices (`None`: label = vertex index).
+pub fn regularize(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    prediction: &Prediction,
+    label_to_vertex: Option<&[usize]>,
+    params: &RegularizerParams,
+) -> Result<DenseMap, Error> {
+    params.matcher.check()?;
+    params.fmap.check()?;
+    let n_ref = reference.mesh.n_vertices();
+    if prediction.n_vertices() != test.mesh.n_vertices() {
+        return Err(fmap::FmapError::SizeMismatch(format!(
+            "prediction for {} vertices, test shape has {}",
+            prediction.n_vertices(),
+            test.mesh.n_vertices()
+        ))
+        .into());
+    }
+    match label_to_vertex {
+        Some(t) if t.len() != prediction.n_labels() || t.iter().any(|&v| v >= n_ref) => {
+            return Err(fmap::FmapError::SizeMismatch(format!(
+                "label table of {} entries for {} labels and a reference of {n_ref} vertices",
+                t.len(),
+                prediction.n_labels()
+            ))
+            .into());
+        }
+        None if prediction.n_labels() > n_ref => {
+            return Err(fmap::FmapError::SizeMismatch(format!(
+                "{} labels but the reference has only {n_ref} vertices: give a label → vertex table",
+                prediction.n_labels()
+            ))
+            .into());
+        }
+        _ => {}
+    }
+    let posterior = LabelledPosterior { prediction, label_to_vertex };
+    let mut timings = RegularizerTimings::default();
+
+    // 1–2. Samples and candidates.
+    let t0 = Instant::now();
+    let n_samples = params.n_samples.min(test.mesh.n_vertices());
+    let samples = farthest_point_sampling_euclidean(&test.mesh, n_samples, None)?;
+    let mut ref_points: Vec<usize> = Vec::new();
+    let mut ref_index = std::collections::HashMap::new();
+    let mut candidates = Vec::new();
+    for (i, &m) in samples.iter().enumerate() {
+        for (label, p) in prediction.top_k(m, params.top_k) {
+            let r = posterior.vertex(label);
+            let idx = *ref_index.entry(r).or_insert_with(|| {
+                ref_points.push(r);
+                ref_points.len() - 1
+            });
+            candidates.push(Candidate { test: i, reference: idx, prior: p as f64 });
+        }
+    }
+    timings.sampling_s = t0.elapsed().as_secs_f64();
+
+    // 3. Distances.
+    let t0 = Instant::now();
+    let test_fields = test.heat.distances_from_many(&samples)?;
+    let ref_fields = reference.heat.distances_from_many(&ref_points)?;
+    let d_test = pairwise(&test_fields, &samples, test.sqrt_area());
+    let d_ref = pairwise(&ref_fields, &ref_points, reference.sqrt_area());
+    timings.distances_s = t0.elapsed().as_secs_f64();
+
+    // 4. Game.
+    let t0 = Instant::now();
+    let energies = orientation_energies(&reference.spectrum);
+    let o_test =
+        orientation_descriptors(&test.mesh, orientation_functions(&test.spectrum, &energies).as_ref());
+    let o_ref = orientation_descriptors(
+        &reference.mesh,
+        orientation_functions(&reference.spectrum, &energies).as_ref(),
+    );
+    let n_pairs = o_test.len() / test.mesh.n_vertices().max(1);
+    let agreement = |m: usize, r: usize| {
+        cosine(&o_test[m * n_pairs..(m + 1) * n_pairs], &o_ref[r * n_pairs..(r + 1) * n_pairs])
+    };
+    let group_score = |g: &crate::matching::GameMatching| {
+        let (mut num, mut den) = (0.0, 0.0);
+        for m in &g.matches {
+            num += m.weight * agreement(samples[m.test], ref_points[m.reference]);
+            den += m.weight;
+        }
+        if den > 0.0 {
+            num / den
+        } else {
+            0.0
+        }
+    };
+    let mut game = game_theoretic_matching(
+        &candidates,
+        &d_test,
+        samples.len(),
+        &d_ref,
+        ref_points.len(),
+        &params.matcher,
+    )?;
+    let mut orientation_score = group_score(&game);
+    let mut mirror_rejected = false;
+    if orientation_score < 0.0 {
+        // The equilibrium is a mirror image: play again among orientation-preserving candidates.
+        let kept: Vec<Candidate> = candidates
+            .iter()
+            .copied()
+            .filter(|c| agreement(samples[c.test], ref_points[c.reference]) > 0.0)
+            .collect();
+        let second = game_theoretic_matching(
+            &kept,
+            &d_test,
+            samples.len(),
+            &d_ref,
+            ref_points.len(),
+            &params.matcher,
+        )?;
+        let second_score = group_score(&second);
+        if second_score > orientation_score && !second.matches.is_empty() {
+            game = second;
+            orientation_score = second_score;
+            mirror_rejected = true;
+        }
+    }
+    timings.matching_s = t0.elapsed().as_secs_f64();
+
+    // 5. Functional maps.
+    let t0 = Instant::now();
+    let (kt, kr) = (params.fmap.k_test.min(test.spectrum.k()), params.fmap.k_ref.min(reference.spectrum.k()));
+    let fmap_predicted = fmap::pullback_fmap(&test.spectrum, &reference.spectrum, kt, kr, &posterior)?;
+    let s = game.matches.len();
+    let a_fields = Mat::from_fn(test.mesh.n_vertices(), s, |v, j| {
+        test_fields[(v, game.matches[j].test)] / test.sqrt_area()
+    });
+    let b_fields =
+        Mat::from_fn(n_ref, s, |v, j| ref_fields[(v, game.matches[j].reference)] / reference.sqrt_area());
+    let a = fmap::spectral_coefficients(&test.spectrum, kt, a_fields.as_ref())?;
+    let b = fmap::spectral_coefficients(&reference.spectrum, kr, b_fields.as_ref())?;
+    let weights: Vec<f64> = game.matches.iter().map(|m| m.weight).collect();
+    let fmap_params = FmapParams { k_test: kt, k_ref: kr, ..params.fmap.clone() };
+    let c = fmap::solve_regularised_fmap(
+        fmap_predicted.as_ref(),
+        a.as_ref(),
+        b.as_ref(),
+        &weights,
+        &test.spectrum.eigenvalues,
+        &reference.spectrum.eigenvalues,
+        &fmap_params,
+    )?;
+    timings.fmap_s = t0.elapsed().as_secs_f64();
+
+    // 6. Point map, and optional refinement.
+    let t0 = Instant::now();
+    let fmap_map = fmap::point_to_point(&test.spectrum, &reference.spectrum, c.as_ref())?;
+    let spectral_map =
+        fmap::point_to_point_restricted(&test.spectrum, &reference.spectrum, c.as_ref(), &posterior)?;
+    let map = anchor_consistent_map(&a_fields, &b_fields, &weights, &posterior, &fmap_map);
+    timings.point_map_s = t0.elapsed().as_secs_f64();
+    let refined_map = match params.zoomout {
+        Some(z) if kt == kr => {
+            let t0 = Instant::now();
+            let k_final = z.k_final.min(test.spectrum.k()).min(reference.spectrum.k());
+            let (_, refined) =
+                fmap::zoomout(&test.spectrum, &reference.spectrum, c.as_ref(), k_final, z.step)?;
+            timings.zoomout_s = t0.elapsed().as_secs_f64();
+            Some(refined)
+        }
+        _ => None,
+    };
+
+    let forest_map = prediction.map_labels().into_iter().map(|l| l.map(|l| posterior.vertex(l))).collect();
+    let matches = game
+        .matches
+        .iter()
+        .map(|m| VertexMatch { test: samples[m.test], reference: ref_points[m.reference], weight: m.weight })
+        .collect();
+    Ok(DenseMap {
+        map,
+        spectral_map,
+        fmap_map,
+        refined_map,
+        forest_map,
+        fmap_predicted,
+        fmap: c,
+        matches,
+        orientation_score,
+        mirror_rejected,
+        timings,
+    })
+}
+
+/// For each test vertex, the candidate reference vertex whose normalised distances to the
+/// anchors best match the vertex's own (weighted L1); `fallback` where there is no candidate
+/// or no anchor.
+fn anchor_consistent_map(
+    test_fields: &Mat<f64>,
+    ref_fields: &Mat<f64>,
+    weights: &[f64],
+    posterior: &LabelledPosterior<'_>,
+    fallback: &[usize],
+) -> Vec<usize> {
+    use rayon::prelude::*;
+    let s = weights.len();
+    if s == 0 {
+        return fallback.to_vec();
+    }
+    (0..fallback.len())
+        .into_par_iter()
+        .map(|m| {
+            let mut best = (f64::INFINITY, fallback[m]);
+            posterior.for_each_entry(m, &mut |r, _| {
+                let cost: f64 =
+                    (0..s).map(|j| weights[j] * (test_fields[(m, j)] - ref_fields[(r, j)]).abs()).sum();
+                if cost < best.0 {
+                    best = (cost, r);
+                }
+            });
+            best.1
+        })
+        .collect()
+}
+
+/// Log-energies of the band-pass functions behind the orientation descriptors: five, spread
+/// over the low part of the reference spectrum (eigenvalues 1 to ~30), where descriptors are
+/// smooth enough for stable gradients.
+fn orientation_energies(reference: &Spectrum) -> Vec<f64> {
+    let lam = &reference.eigenvalues;
+    let first = lam.iter().position(|&l| l > 1e-9 * lam.last().copied().unwrap_or(1.0)).unwrap_or(0);
+    let last = (first + 30).min(lam.len().saturating_sub(1));
+    let (lo, hi) = (lam[first].max(1e-12).ln(), lam[last].max(1e-12).ln());
+    (0..5).map(|i| lo + (hi - lo) * (i as f64 + 0.5) / 5.0).collect()
+}
+
+/// Band-pass (WKS-like) functions at the given log-energies, normalised per energy.
+fn orientation_functions(spectrum: &Spectrum, energies: &[f64]) -> Mat<f64> {
+    let sigma = if energies.len() > 1 {
+        (energies[energies.len() - 1] - energies[0]) / (energies.len() - 1) as f64
+    } else {
+        1.0
+    };
+    let n = spectrum.n_vertices;
+    let mut f = Mat::zeros(n, energies.len());
+    for (c, &e) in energies.iter().enumerate() {
+        let w: Vec<f64> = spectrum
+            .eigenvalues
+            .iter()
+            .map(|&l| if l > 0.0 { wks_filter_sq(e, l, sigma) } else { 0.0 })
+            .collect();
+        let norm: f64 = w.iter().sum::<f64>().max(f64::MIN_POSITIVE);
+        for (k, &wk) in w.iter().enumerate() {
+            if wk > 1e-12 * norm {
+                let phi = spectrum.phi(k);
+                for v in 0..n {
+                    f[(v, c)] += wk / norm * phi[v] * phi[v];
+                }
+            }
+        }
+    }
+    f
+}
+
+fn cosine(a: &[f64], b: &[f64]) -> f64 {
+    let (mut ab, mut aa, mut bb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        ab += x * y;
+        aa += x * x;
+        bb += y * y;
+    }
+    if aa > 0.0 && bb > 0.0 {
+        ab / (aa * bb).sqrt()
+    } else {
+        0.0
+    }
+}

@@ -1,0 +1,479 @@
+//! Restarted block Lanczos for the largest eigenvalues of a symmetric positive operator.
+//!
+//! This is the engine behind [`super::LaplaceBeltramiSolver`]: the operator it sees is the
+//! shift-inverted, mass-scaled Laplacian `C = (D⁻¹ L D⁻¹ − σ I)⁻¹` (with `D = M^{1/2}`), whose
+//! largest eigenvalues `θ = 1/(λ − σ)` are the smallest Laplace eigenvalues `λ`.
+//!
+//! The method is a block Krylov–Schur iteration (Stewart 2001; the block variant of
+//! thick-restart Lanczos, Wu & Simon 2000):
+//! - a block of `b` vectors is expanded one operator application at a time; every new block is
+//!   orthogonalised against the whole basis with classical Gram–Schmidt done twice (full
+//!   reorthogonalisation, so no spurious copies of converged Ritz values appear), and against a
+//!   set of *locked* vectors (exact eigenvectors known beforehand, e.g. the constant vectors);
+//! - when the basis is full, the projected matrix `H = VᵀCV` is diagonalised and the basis is
+//!   compressed to the wanted Ritz vectors plus some extra ones (thick restart), followed by the
+//!   last residual block;
+//! - a Ritz pair `(θ, y)` is converged when `‖C y − θ y‖ ≤ tol · θ`, a residual read off the
+//!   Krylov relation `C V = V H + Q B Eᵀ` without touching the operator.
+//!
+//! Blocks find eigenvalues of multiplicity up to `b` in step; larger exact multiplicities can
+//! be missed by any Krylov method, which is why the caller locks the known null space and can
+//! verify the result by counting eigenvalues (Sylvester inertia).
+//!
+//! Everything is sequential and seeded, so results are bit-for-bit reproducible.
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::evd::{self_adjoint_evd, self_adjoint_evd_scratch, ComputeEigenvectors};
+use faer::linalg::matmul::matmul;
+use faer::reborrow::{IntoConst, Reborrow, ReborrowMut};
+use faer::{Accum, Mat, MatMut, MatRef, Par};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Settings of one block Lanczos run (already validated by the caller).
+#[derive(Clone, Debug)]
+pub(crate) struct BlockLanczos {
+    /// Number of wanted (largest) eigenpairs.
+    pub nev: usize,
+    /// Block size `b`.
+    pub block: usize,
+    /// Maximal basis size; must satisfy `nev + 2·block ≤ ncv ≤ n − locked`.
+    pub ncv: usize,
+    /// Relative residual tolerance `‖C y − θ y‖ ≤ tol·θ`.
+    pub tol: f64,
+    /// Maximal number of thick restarts.
+    pub max_restarts: usize,
+    /// Seed of the random start block.
+    pub seed: u64,
+}
+
+/// Converged eigenpairs of the operator.
+#[derive(Debug)]
+pub(crate) struct LanczosOutput {
+    /// The `nev` largest eigenvalues, descending.
+    pub theta: Vec<f64>,
+    /// Their orthonormal eigenvectors, `n × nev`.
+    pub vectors: Mat<f64>,
+    /// Restarts performed.
+    pub restarts: usize,
+    /// Block operator applications performed.
+    pub applications: usize,
+}
+
+/// The iteration stopped before every wanted pair converged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum LanczosFailure {
+    /// `found` of the `wanted` pairs had converged when the restart budget ran out.
+    NotConverged { found: usize, wanted: usize },
+    /// No direction orthogonal to the basis could be found (the space is exhausted).
+    Exhausted,
+}
+
+/// Columns whose norm after orthogonalisation fell below this fraction of their norm before
+/// are re-orthogonalised once more.
+const WEAK: f64 = 1e-8;
+/// Columns that fell below this fraction are numerically in the span of the basis: they are
+/// replaced by fresh random directions.
+const BREAKDOWN: f64 = 1e-13;
+
+impl BlockLanczos {
+    /// Runs the iteration. `op(x, y)` must write `y = C x` for a block `x` of `b` columns;
+    /// `locked` holds orthonormal exact eigenvectors to stay orthogonal to (may have 0 columns).
+    pub fn run(
+        &self,
+        n: usize,
+        locked: MatRef<'_, f64>,
+        op: &mut dyn FnMut(MatRef<'_, f64>, MatMut<'_, f64>),
+    ) -> Result<LanczosOutput, LanczosFailure> {
+        let b = self.block;
+        let ncv = self.ncv;
+        assert!(b >= 1 && self.nev >= 1 && self.nev + 2 * b <= ncv, "invalid Lanczos sizes");
+        assert!(ncv + locked.ncols() <= n, "basis larger than the space");
+        assert_eq!(locked.nrows(), n);
+        let par = Par::Seq;
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
+
+        // Basis with room for the residual block beyond ncv.
+        let mut v = Mat::<f64>::zeros(n, ncv + b);
+        let mut h = Mat::<f64>::zeros(ncv, ncv);
+        let mut coef = Mat::<f64>::zeros(ncv + b, b);
+        let mut coef2 = Mat::<f64>::zeros(ncv + b, b);
+        let mut lcoef = Mat::<f64>::zeros(locked.ncols(), b);
+        let mut r = Mat::<f64>::zeros(b, b);
+        let mut evd_s = Mat::<f64>::zeros(ncv, 1);
+        let mut evd_u = Mat::<f64>::zeros(ncv, ncv);
+        let mut evd_mem = MemBuffer::new(self_adjoint_evd_scratch::<f64>(
+            ncv,
+            ComputeEigenvectors::Yes,
+            par,
+            Default::default(),
+        ));
+        let mut restart_tmp = Mat::<f64>::zeros(n, ncv);
+        let mut norms = vec![0.0; b];
+
+        // Random start block, orthonormal and orthogonal to the locked vectors.
+        for j in 0..b {
+            for x in col_mut(v.as_mut(), j) {
+                *x = rng.random_range(-1.0..1.0);
+            }
+        }
+        {
+            let (basis, mut w) = v.as_mut().split_at_col_mut(0);
+            let w = w.rb_mut().subcols_mut(0, b);
+            for (j, nrm) in norms.iter_mut().enumerate() {
+                *nrm = norm(col(w.rb(), j));
+            }
+            orthonormalize_block(locked, basis.rb(), w, r.as_mut(), &norms, lcoef.as_mut(), &mut rng, par)?;
+        }
+
+        let mut size = 0usize; // basis vectors whose column of H is known
+        let mut restarts = 0usize;
+        let mut applications = 0usize;
+        loop {
+            // Expand: the block at [size, size + b) is orthonormal; produce the next one.
+            while size + b <= ncv {
+                let (head, mut tail) = v.as_mut().split_at_col_mut(size + b);
+                let input = head.rb().subcols(size, b);
+                let mut w = tail.rb_mut().subcols_mut(0, b);
+                op(input, w.rb_mut());
+                applications += 1;
+                for (j, nrm) in norms.iter_mut().enumerate() {
+                    *nrm = norm(col(w.rb(), j));
+                }
+                let basis = head.rb();
+                let m = size + b;
+                // Locked vectors: C keeps their complement invariant, this only removes drift.
+                project_out(locked, w.rb_mut(), lcoef.as_mut(), par);
+                project_out(locked, w.rb_mut(), lcoef.as_mut(), par);
+                // Full reorthogonalisation against the basis, twice.
+                let mut c1 = coef.as_mut().subrows_mut(0, m);
+                let mut c2 = coef2.as_mut().subrows_mut(0, m);
+                project_out(basis, w.rb_mut(), c1.rb_mut(), par);
+                project_out(basis, w.rb_mut(), c2.rb_mut(), par);
+                for jj in 0..b {
+                    for ii in 0..m {
+                        c1[(ii, jj)] += c2[(ii, jj)];
+                    }
+                }
+                // Column block [size, size+b) of H and its mirror.
+                for jj in 0..b {
+                    for ii in 0..m {
+                        let val = c1[(ii, jj)];
+                        h[(ii, size + jj)] = val;
+                        h[(size + jj, ii)] = val;
+                    }
+                }
+                for jj in 0..b {
+                    for ii in 0..jj {
+                        let s = 0.5 * (h[(size + ii, size + jj)] + h[(size + jj, size + ii)]);
+                        h[(size + ii, size + jj)] = s;
+                        h[(size + jj, size + ii)] = s;
+                    }
+                }
+                orthonormalize_block(locked, basis, w, r.as_mut(), &norms, lcoef.as_mut(), &mut rng, par)?;
+                size += b;
+            }
+
+            // Rayleigh–Ritz on the projected matrix.
+            let m = size;
+            {
+                let mut s = evd_s.as_mut().subrows_mut(0, m);
+                let s_diag = s.rb_mut().col_mut(0).as_diagonal_mut();
+                let u = evd_u.as_mut().submatrix_mut(0, 0, m, m);
+                self_adjoint_evd(
+                    h.as_ref().submatrix(0, 0, m, m),
+                    s_diag,
+                    Some(u),
+                    par,
+                    MemStack::new(&mut evd_mem),
+                    Default::default(),
+                )
+                .map_err(|_| LanczosFailure::NotConverged { found: 0, wanted: self.nev })?;
+            }
+            // Descending order: Ritz pair i is column m-1-i.
+            let theta: Vec<f64> = (0..m).map(|i| evd_s[(m - 1 - i, 0)]).collect();
+            let residual = |i: usize| -> f64 {
+                let c = m - 1 - i;
+                let mut acc = 0.0;
+                for row in 0..b {
+                    let mut x = 0.0;
+                    for k in row..b {
+                        x += r[(row, k)] * evd_u[(m - b + k, c)];
+                    }
+                    acc += x * x;
+                }
+                acc.sqrt()
+            };
+            let converged: Vec<bool> = (0..m).map(|i| residual(i) <= self.tol * theta[i].abs()).collect();
+            let nconv = converged[..self.nev].iter().filter(|&&c| c).count();
+            tracing::debug!(
+                restart = restarts,
+                basis = m,
+                converged = nconv,
+                wanted = self.nev,
+                "block Lanczos cycle"
+            );
+
+            let done = nconv == self.nev;
+            if done || restarts >= self.max_restarts {
+                if !done {
+                    return Err(LanczosFailure::NotConverged { found: nconv, wanted: self.nev });
+                }
+                let mut vectors = Mat::<f64>::zeros(n, self.nev);
+                let s_sel = Mat::<f64>::from_fn(m, self.nev, |i, j| evd_u[(i, m - 1 - j)]);
+                matmul(vectors.as_mut(), Accum::Replace, v.as_ref().subcols(0, m), s_sel.as_ref(), 1.0, par);
+                return Ok(LanczosOutput {
+                    theta: theta[..self.nev].to_vec(),
+                    vectors,
+                    restarts,
+                    applications,
+                });
+            }
+
+            // Thick restart: keep the wanted Ritz vectors plus extra ones, then the residual block.
+            let keep = (self.nev + nconv.min((m - self.nev) / 2)).min(ncv - 2 * b);
+            let s_keep = Mat::<f64>::from_fn(m, keep, |i, j| evd_u[(i, m - 1 - j)]);
+            {
+                let mut t = restart_tmp.as_mut().subcols_mut(0, keep);
+                matmul(t.rb_mut(), Accum::Replace, v.as_ref().subcols(0, m), s_keep.as_ref(), 1.0, par);
+                v.as_mut().subcols_mut(0, keep).copy_from(t.rb());
+            }
+            for j in 0..b {
+                let (left, right) = v.as_mut().split_at_col_mut(m);
+                let mut left = left;
+                left.rb_mut().col_mut(keep + j).copy_from(right.rb().col(j));
+            }
+            h.fill(0.0);
+            for (i, &t) in theta.iter().enumerate().take(keep) {
+                h[(i, i)] = t;
+            }
+            size = keep;
+            restarts += 1;
+        }
+    }
+}
+
+/// `w -= basis (basisᵀ w)`, storing the coefficients `basisᵀ w` in `c`.
+fn project_out(basis: MatRef<'_, f64>, mut w: MatMut<'_, f64>, mut c: MatMut<'_, f64>, par: Par) {
+    if basis.ncols() == 0 {
+        return;
+    }
+    matmul(c.rb_mut(), Accum::Replace, basis.transpose(), w.rb(), 1.0, par);
+    matmul(w.rb_mut(), Accum::Add, basis, c.rb(), -1.0, par);
+}
+
+/// QR of a block already orthogonalised against `locked` and `basis`: `w ← Q`, `r ← R`.
+/// `norms[j]` is the norm of column `j` before any orthogonalisation, the reference for
+/// detecting cancellation. Columns that vanish are replaced by random directions (their row of
+/// `R` is zero, which keeps the Krylov relation exact up to the discarded remainder).
+#[allow(clippy::too_many_arguments)]
+fn orthonormalize_block(
+    locked: MatRef<'_, f64>,
+    basis: MatRef<'_, f64>,
+    mut w: MatMut<'_, f64>,
+    mut r: MatMut<'_, f64>,
+    norms: &[f64],
+    mut lcoef: MatMut<'_, f64>,
+    rng: &mut ChaCha8Rng,
+    par: Par,
+) -> Result<(), LanczosFailure> {
+    let b = w.ncols();
+    r.fill(0.0);
+    for j in 0..b {
+        // Modified Gram–Schmidt against the earlier columns of the block, twice.
+        for _ in 0..2 {
+            for i in 0..j {
+                let (qi, wj) = two_cols(w.rb_mut(), i, j);
+                let c = dot(qi, wj);
+                axpy(-c, qi, wj);
+                r[(i, j)] += c;
+            }
+        }
+        let mut nrm = norm(col(w.rb(), j));
+        let reference = norms[j].max(f64::MIN_POSITIVE);
+        if nrm <= BREAKDOWN * reference {
+            // Numerically dependent: continue with a random direction instead.
+            for i in 0..j {
+                r[(i, j)] = 0.0;
+            }
+            let mut attempts = 0;
+            loop {
+                attempts += 1;
+                if attempts > 5 {
+                    return Err(LanczosFailure::Exhausted);
+                }
+                for x in col_mut(w.rb_mut(), j) {
+                    *x = rng.random_range(-1.0..1.0);
+                }
+                let before = norm(col(w.rb(), j));
+                reorthogonalize_column(locked, basis, w.rb_mut(), j, lcoef.rb_mut(), par);
+                reorthogonalize_column(locked, basis, w.rb_mut(), j, lcoef.rb_mut(), par);
+                nrm = norm(col(w.rb(), j));
+                if nrm > 1e-6 * before {
+                    break;
+                }
+            }
+            scale(col_mut(w.rb_mut(), j), 1.0 / nrm);
+            continue;
+        }
+        if nrm <= WEAK * reference {
+            // Heavy cancellation: orthogonality to the basis may have degraded; restore it.
+            scale(col_mut(w.rb_mut(), j), 1.0 / nrm);
+            reorthogonalize_column(locked, basis, w.rb_mut(), j, lcoef.rb_mut(), par);
+            let again = norm(col(w.rb(), j));
+            scale(col_mut(w.rb_mut(), j), 1.0 / again);
+            r[(j, j)] = nrm;
+            continue;
+        }
+        r[(j, j)] = nrm;
+        scale(col_mut(w.rb_mut(), j), 1.0 / nrm);
+    }
+    Ok(())
+}
+
+/// One classical Gram–Schmidt pass of column `j` of `w` against `locked`, `basis` and the
+/// columns `0..j` of `w`.
+fn reorthogonalize_column(
+    locked: MatRef<'_, f64>,
+    basis: MatRef<'_, f64>,
+    mut w: MatMut<'_, f64>,
+    j: usize,
+    mut lcoef: MatMut<'_, f64>,
+    par: Par,
+) {
+    let mut c = Mat::<f64>::zeros(basis.ncols().max(locked.ncols()), 1);
+    let wj = w.rb_mut().subcols_mut(j, 1);
+    let nl = locked.ncols();
+    if nl > 0 {
+        project_out(locked, wj, lcoef.rb_mut().subcols_mut(0, 1), par);
+    }
+    let wj = w.rb_mut().subcols_mut(j, 1);
+    project_out(basis, wj, c.as_mut().subrows_mut(0, basis.ncols()), par);
+    for i in 0..j {
+        let (qi, wj) = two_cols(w.rb_mut(), i, j);
+        let cc = dot(qi, wj);
+        axpy(-cc, qi, wj);
+    }
+}
+
+fn col<'a>(m: MatRef<'a, f64>, j: usize) -> &'a [f64] {
+    m.col(j).try_as_col_major().expect("column-major storage").as_slice()
+}
+
+fn col_mut<'a>(m: MatMut<'a, f64>, j: usize) -> &'a mut [f64] {
+    m.col_mut(j).try_as_col_major_mut().expect("column-major storage").as_slice_mut()
+}
+
+/// Column `i` (read) and column `j` (write) of the same matrix, `i < j`.
+fn two_cols<'a>(m: MatMut<'a, f64>, i: usize, j: usize) -> (&'a [f64], &'a mut [f64]) {
+    debug_assert!(i < j);
+    let (left, right) = m.split_at_col_mut(j);
+    (col(left.into_const(), i), col_mut(right, 0))
+}
+
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    // Four accumulators: lets the compiler vectorise while staying deterministic.
+    let mut acc = [0.0f64; 4];
+    let chunks = a.len() / 4;
+    for c in 0..chunks {
+        for l in 0..4 {
+            acc[l] += a[4 * c + l] * b[4 * c + l];
+        }
+    }
+    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    for i in 4 * chunks..a.len() {
+        s += a[i] * b[i];
+    }
+    s
+}
+
+#[inline]
+fn norm(a: &[f64]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+#[inline]
+fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
+    for (yi, xi) in y.iter_mut().zip(x) {
+        *yi += alpha * xi;
+    }
+}
+
+#[inline]
+fn scale(x: &mut [f64], alpha: f64) {
+    for xi in x {
+        *xi *= alpha;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Diagonal operator with known spectrum, including a triple eigenvalue.
+    fn diagonal_op(d: Vec<f64>) -> impl FnMut(MatRef<'_, f64>, MatMut<'_, f64>) {
+        move |x, mut y| {
+            for j in 0..x.ncols() {
+                for i in 0..x.nrows() {
+                    y[(i, j)] = d[i] * x[(i, j)];
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn finds_largest_eigenvalues_with_multiplicity() {
+        let n = 400;
+        let mut d: Vec<f64> = (0..n).map(|i| 1.0 / (1.0 + i as f64)).collect();
+        d[1] = 0.5;
+        d[2] = 0.5; // 0.5 three times (indices 1, 2, 3? d[1]=0.5 already), plus index 1
+        d[3] = 0.5;
+        let mut sorted = d.clone();
+        sorted.sort_by(|a, b| b.total_cmp(a));
+        let lz = BlockLanczos { nev: 10, block: 4, ncv: 40, tol: 1e-10, max_restarts: 200, seed: 7 };
+        let locked = Mat::<f64>::zeros(n, 0);
+        let out = lz.run(n, locked.as_ref(), &mut diagonal_op(d)).unwrap();
+        for (t, e) in out.theta.iter().zip(&sorted) {
+            assert!((t - e).abs() < 1e-9 * e, "{t} vs {e}");
+        }
+        // Orthonormal vectors.
+        let g = out.vectors.transpose() * &out.vectors;
+        for i in 0..10 {
+            for j in 0..10 {
+                let want = if i == j { 1.0 } else { 0.0 };
+                assert!((g[(i, j)] - want).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn locked_vectors_are_avoided() {
+        let n = 200;
+        let d: Vec<f64> = (0..n).map(|i| 1.0 / (1.0 + i as f64)).collect();
+        // Lock e_0 (eigenvalue 1): the iteration must return 1/2, 1/3, ...
+        let mut locked = Mat::<f64>::zeros(n, 1);
+        locked[(0, 0)] = 1.0;
+        let lz = BlockLanczos { nev: 5, block: 2, ncv: 30, tol: 1e-10, max_restarts: 200, seed: 1 };
+        let out = lz.run(n, locked.as_ref(), &mut diagonal_op(d)).unwrap();
+        for (i, t) in out.theta.iter().enumerate() {
+            let e = 1.0 / (2.0 + i as f64);
+            assert!((t - e).abs() < 1e-9, "{t} vs {e}");
+        }
+    }
+
+    #[test]
+    fn restart_budget_exhaustion_is_reported() {
+        let n = 300;
+        let d: Vec<f64> = (0..n).map(|i| 1.0 - 1e-4 * i as f64).collect();
+        let lz = BlockLanczos { nev: 20, block: 2, ncv: 26, tol: 1e-14, max_restarts: 1, seed: 1 };
+        let locked = Mat::<f64>::zeros(n, 0);
+        match lz.run(n, locked.as_ref(), &mut diagonal_op(d)) {
+            Err(LanczosFailure::NotConverged { found, wanted }) => {
+                assert_eq!(wanted, 20);
+                assert!(found < 20);
+            }
+            other => panic!("expected NotConverged, got {other:?}"),
+        }
+    }
+}

@@ -1,0 +1,822 @@
+//! The sparse Laplace–Beltrami eigensolver: [`SpectrumParams`], [`LaplaceBeltramiSolver`] and
+//! [`compute_spectrum`].
+//!
+//! The generalised problem `L φ = λ M φ` of the mesh scaled to unit area is solved as follows.
+//!
+//! 1. **Reduction.** Unreferenced vertices (no incident triangle of positive area) carry no mass
+//!    and no stiffness: they are removed from the problem and every eigenvector is `0` there.
+//!    The remaining masses are floored at `1e-12 / n` so that `M` is positive definite; the
+//!    floored mass is what [`Spectrum::mass`] holds, so `Φᵀ M Φ = I` holds exactly with it.
+//! 2. **Null space.** `L` is positive semi-definite with one zero eigenvalue per connected
+//!    component, eigenvector the indicator of the component (`L 1 = 0`). These are computed
+//!    exactly (eigenvalue exactly `0`, eigenvector constant and positive on its component,
+//!    ordered by the smallest vertex index of the component) and *locked*, so any number of
+//!    components is handled, not only as many as the block size.
+//! 3. **Shift-invert block Lanczos** ([`super::lanczos`]) on the rest: with `D = M^{1/2}` and the
+//!    symmetric `L̂ = D⁻¹ L D⁻¹`, the operator `(L̂ − σ I)⁻¹` (σ < 0, so the matrix is SPD and
+//!    factorised once by a supernodal sparse Cholesky) has the smallest `λ` as its largest
+//!    eigenvalues `θ = 1/(λ − σ)`. Its eigenvectors `y` give `φ = D⁻¹ y`. Eigenvalues are then
+//!    refined as Rayleigh quotients `λ = φᵀ L φ` (tiny negative round-off is clamped to `0`).
+//! 4. **Verification** (on by default). The relative residuals
+//!    `‖L φ − λ M φ‖_{M⁻¹} / max(λ, 1)` are computed for every pair; and the number of
+//!    eigenvalues below `τ = λ_K (1 − 10⁻⁴)` is counted independently with Sylvester's law of
+//!    inertia (negative pivots of an `LDLᵀ` factorisation of `L̂ − τ I`). A pair whose residual
+//!    is too large, or an eigenvalue below `τ` that the iteration missed, is reported as an
+//!    error instead of silently returning wrong pairs.
+//!
+//! Small problems (`n ≤ dense_threshold`, or K too close to `n` for a Krylov basis) are solved
+//! exactly with a dense eigendecomposition instead, with the same conventions.
+//!
+//! **Sign convention.** An eigenvector is only defined up to sign; to make results comparable
+//! across runs and solvers every eigenvector is flipped so that its entry of largest magnitude
+//! is positive (among entries within a relative `10⁻⁶` of the largest magnitude, the one with
+//! the smallest vertex index decides, so that antisymmetric eigenvectors get a stable sign
+//! too). Eigenvectors of a repeated eigenvalue are only defined up to a rotation within their
+//! eigenspace: only the spanned subspace is meaningful there.
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
+use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::linalg::evd::{self_adjoint_evd, self_adjoint_evd_scratch, ComputeEigenvectors};
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, supernodal::SupernodalLdltRef, CholeskySymbolicParams, LltRef,
+    SymbolicCholesky, SymbolicCholeskyRaw, SymmetricOrdering,
+};
+use faer::sparse::linalg::matmul::sparse_dense_matmul;
+use faer::sparse::linalg::SupernodalThreshold;
+use faer::sparse::{SparseColMat, Triplet};
+use faer::{Accum, Conj, Mat, MatMut, MatRef, Par, Side};
+use serde::{Deserialize, Serialize};
+
+use super::lanczos::{BlockLanczos, LanczosFailure};
+use super::{cotan_laplacian, cotan_weights, vertex_lumped_mass, SpectralError, Spectrum};
+use crate::mesh::Mesh;
+
+/// Version of the numerical method; part of the spectrum cache key, bump it when results change.
+pub const SOLVER_VERSION: u32 = 1;
+
+/// Relative mass floor: active vertices get at least `MASS_FLOOR / n` of the unit total area.
+const MASS_FLOOR: f64 = 1e-12;
+/// Relative distance below `λ_K` at which the eigenvalue count is verified.
+const COUNT_MARGIN: f64 = 1e-4;
+
+/// Parameters of the Laplace–Beltrami eigensolver.
+///
+/// Build with [`SpectrumParams::new`] (defaults scaled to `k`) or [`Default`] (`k = 100`), adjust
+/// fields, and let [`SpectrumParams::check`] (called by every solver entry point) validate.
+///
+/// ```
+/// use shapeforest::spectral::SpectrumParams;
+/// let p = SpectrumParams::new(30);
+/// assert!(p.check().is_ok());
+/// let bad = SpectrumParams { shift: 0.5, ..p };
+/// assert!(bad.check().unwrap_err().to_string().contains("shift"));
+/// ```
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SpectrumParams {
+    /// Number of eigenpairs K (smallest eigenvalues first). Default 100.
+    pub k: usize,
+    /// Spectral shift σ on the unit-area mesh; must be negative so that `L − σM` is positive
+    /// definite. Eigenvalues near σ converge first. Default `-0.01`.
+    pub shift: f64,
+    /// Lanczos block size: eigenvalues of multiplicity up to this are found together.
+    /// Default 8.
+    pub block_size: usize,
+    /// Maximal Krylov basis size; at least `k + 2·block_size`. Default `max(240, 2.4·k)`.
+    pub max_basis: usize,
+    /// Relative residual tolerance of the shift-inverted problem (`‖C y − θ y‖ ≤ tol·θ`).
+    /// Default `1e-10`.
+    pub tol: f64,
+    /// Seed of the random start block; equal seeds give bit-identical results. Default 0.
+    pub seed: u64,
+    /// Maximal number of thick restarts before reporting [`SpectralError::NotConverged`].
+    /// Default 100.
+    pub max_restarts: usize,
+    /// Problems with at most this many (referenced) vertices are solved densely. Default 600.
+    pub dense_threshold: usize,
+    /// Verify the result: residual bound and an independent eigenvalue count (one extra sparse
+    /// `LDLᵀ` factorisation). Default `true`.
+    pub verify: bool,
+}
+
+impl Default for SpectrumParams {
+    fn default() -> Self {
+        Self::new(100)
+    }
+}
+
+impl SpectrumParams {
+    /// Defaults for `k` eigenpairs (the basis size grows with `k`).
+    ///
+    /// ```
+    /// let p = shapeforest::spectral::SpectrumParams::new(200);
+    /// assert_eq!(p.k, 200);
+    /// assert!(p.max_basis >= 200 + 2 * p.block_size);
+    /// ```
+    pub fn new(k: usize) -> Self {
+        Self {
+            k,
+            shift: -0.01,
+            block_size: 8,
+            max_basis: 240.max(k * 12 / 5 + 16),
+            tol: 1e-10,
+            seed: 0,
+            max_restarts: 100,
+            dense_threshold: 600,
+            verify: true,
+        }
+    }
+
+    /// Checks every field, naming the first offending one.
+    pub fn check(&self) -> Result<(), SpectralError> {
+        let invalid =
+            |field: &'static str, reason: String| Err(SpectralError::InvalidParams { field, reason });
+        if self.k == 0 {
+            return invalid("k", "at least one eigenpair must be requested".into());
+        }
+        if !(self.shift.is_finite() && self.shift < 0.0) {
+            return invalid(
+                "shift",
+                format!("must be finite and negative (L − σM must be positive definite), got {}", self.shift),
+            );
+        }
+        if self.block_size == 0 {
+            return invalid("block_size", "must be at least 1".into());
+        }
+        if self.max_basis < self.k + 2 * self.block_size {
+            return invalid(
+                "max_basis",
+                format!(
+                    "must be at least k + 2·block_size = {} (got {}); SpectrumParams::new(k) picks a suitable value",
+                    self.k + 2 * self.block_size,
+                    self.max_basis
+                ),
+            );
+        }
+        if !(self.tol.is_finite() && self.tol > 0.0 && self.tol < 1e-2) {
+            return invalid("tol", format!("must be in (0, 0.01), got {}", self.tol));
+        }
+        if self.max_restarts == 0 {
+            return invalid("max_restarts", "must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// Which method produced a spectrum.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum SpectrumMethod {
+    /// Exact dense eigendecomposition (small problems).
+    Dense,
+    /// Only the null space was needed (K ≤ number of connected components).
+    NullSpace,
+    /// Shift-inverted block Lanczos.
+    Lanczos,
+}
+
+/// Diagnostics of one solve.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SpectrumReport {
+    /// The method used.
+    pub method: SpectrumMethod,
+    /// Connected components (= zero eigenvalues) of the referenced part of the mesh.
+    pub n_components: usize,
+    /// Vertices without area, excluded from the problem (eigenvectors are 0 there).
+    pub n_unreferenced: usize,
+    /// Thick restarts of the Lanczos iteration.
+    pub restarts: usize,
+    /// Block applications of the shift-inverted operator (each one sparse block solve).
+    pub block_solves: usize,
+    /// Largest relative residual `‖Lφ − λMφ‖_{M⁻¹} / max(λ, 1)` over the returned pairs.
+    pub max_relative_residual: f64,
+    /// The threshold below which the eigenvalue count was verified, if it was.
+    pub count_verified_below: Option<f64>,
+}
+
+/// A Laplace–Beltrami eigensolver for one mesh: the reduced, mass-scaled problem and (for
+/// large meshes) the sparse Cholesky factorisation of the shifted operator, built once.
+///
+/// ```
+/// use shapeforest::spectral::{LaplaceBeltramiSolver, SpectrumParams};
+/// use shapeforest::synth::icosphere;
+/// let solver = LaplaceBeltramiSolver::new(&icosphere(2, 1.0), &SpectrumParams::new(4)).unwrap();
+/// let (s, report) = solver.solve_with_report().unwrap();
+/// assert_eq!(s.eigenvalues[0], 0.0);
+/// assert!(report.max_relative_residual < 1e-8);
+/// ```
+#[derive(Debug)]
+pub struct LaplaceBeltramiSolver {
+    params: SpectrumParams,
+    n_vertices: usize,
+    area: f64,
+    /// Unit-area mass, floored on active vertices, 0 on unreferenced ones (full length).
+    mass: Vec<f64>,
+    /// Reduced index → vertex index.
+    active: Vec<usize>,
+    /// `sqrt(mass)` on the reduced problem.
+    sqrt_mass: Vec<f64>,
+    /// `L̂ = D⁻¹ L D⁻¹` on the reduced problem, both triangles, every diagonal entry stored.
+    lhat: SparseColMat<usize, f64>,
+    /// Position of each diagonal entry in `lhat`'s values.
+    diag_pos: Vec<usize>,
+    /// Component label of each reduced vertex (labels ordered by smallest vertex index).
+    component: Vec<usize>,
+    n_components: usize,
+    /// Cholesky factorisation of `L̂ − σ I` (sparse path only).
+    factor: Option<Factorization>,
+}
+
+#[derive(Debug)]
+struct Factorization {
+    symbolic: SymbolicCholesky<usize>,
+    values: Vec<f64>,
+}
+
+impl LaplaceBeltramiSolver {
+    /// Validates `params`, assembles the reduced problem and, when the sparse method will be
+    /// used, factorises `L̂ − σ I`.
+    pub fn new(mesh: &Mesh, params: &SpectrumParams) -> Result<Self, SpectralError> {
+        params.check()?;
+        let n = mesh.n_vertices();
+        let area = mesh.surface_area();
+        if !(area.is_finite() && area > 0.0) {
+            return Err(SpectralError::ZeroArea);
+        }
+        let raw_mass = vertex_lumped_mass(mesh);
+        let weights = cotan_weights(mesh);
+        let mut has_stiffness = vec![false; n];
+        for &(i, j, _) in &weights {
+            has_stiffness[i] = true;
+            has_stiffness[j] = true;
+        }
+        let active: Vec<usize> = (0..n).filter(|&i| raw_mass[i] > 0.0 || has_stiffness[i]).collect();
+        let na = active.len();
+        let floor = MASS_FLOOR / na.max(1) as f64;
+        let mut mass = vec![0.0; n];
+        for &i in &active {
+            mass[i] = (raw_mass[i] / area).max(floor);
+        }
+        if params.k > na {
+            return Err(SpectralError::TooManyEigenpairs { wanted: params.k, n_vertices: na });
+        }
+        let mut reduced = vec![usize::MAX; n];
+        for (r, &i) in active.iter().enumerate() {
+            reduced[i] = r;
+        }
+        let sqrt_mass: Vec<f64> = active.iter().map(|&i| mass[i].sqrt()).collect();
+
+        // Assemble L̂ and the components of the stiffness graph.
+        let mut uf = UnionFind::new(na);
+        let mut triplets = Vec::with_capacity(4 * weights.len() + na);
+        for r in 0..na {
+            triplets.push(Triplet::new(r, r, 0.0));
+        }
+        for &(i, j, w) in &weights {
+            let (ri, rj) = (reduced[i], reduced[j]);
+            let (di, dj) = (sqrt_mass[ri], sqrt_mass[rj]);
+            triplets.push(Triplet::new(ri, rj, -w / (di * dj)));
+            triplets.push(Triplet::new(rj, ri, -w / (di * dj)));
+            triplets.push(Triplet::new(ri, ri, w / (di * di)));
+            triplets.push(Triplet::new(rj, rj, w / (dj * dj)));
+            if w != 0.0 {
+                uf.union(ri, rj);
+            }
+        }
+        let lhat = SparseColMat::try_new_from_triplets(na, na, &triplets)
+            .map_err(|e| SpectralError::Factorization(format!("assembling the Laplacian: {e:?}")))?;
+        let mut diag_pos = Vec::with_capacity(na);
+        for j in 0..na {
+            let sym = lhat.symbolic();
+            let (start, end) = (sym.col_ptr()[j], sym.col_ptr()[j + 1]);
+            let off = sym.row_idx()[start..end]
+                .iter()
+                .position(|&i| i == j)
+                .expect("diagonal entries are always assembled");
+            diag_pos.push(start + off);
+        }
+        let (component, n_components) = uf.labels();
+
+        let mut solver = Self {
+            params: params.clone(),
+            n_vertices: n,
+            area,
+            mass,
+            active,
+            sqrt_mass,
+            lhat,
+            diag_pos,
+            component,
+            n_components,
+            factor: None,
+        };
+        if solver.method() == SpectrumMethod::Lanczos {
+            solver.factor = Some(solver.factorize_shifted()?);
+        }
+        Ok(solver)
+    }
+
+    /// The parameters this solver was built with.
+    pub fn params(&self) -> &SpectrumParams {
+        &self.params
+    }
+
+    /// Number of vertices of the mesh (including unreferenced ones).
+    pub fn n_vertices(&self) -> usize {
+        self.n_vertices
+    }
+
+    /// Connected components of the mesh's referenced part: the multiplicity of eigenvalue 0.
+    pub fn n_components(&self) -> usize {
+        self.n_components
+    }
+
+    /// Surface area of the original mesh.
+    pub fn area(&self) -> f64 {
+        self.area
+    }
+
+    /// The method [`Self::solve`] will use.
+    pub fn method(&self) -> SpectrumMethod {
+        let na = self.active.len();
+        let k = self.params.k;
+        if k <= self.n_components {
+            return SpectrumMethod::NullSpace;
+        }
+        let nev = k - self.n_components;
+        let room = na - self.n_components;
+        if na <= self.params.dense_threshold || nev + 2 * self.params.block_size > room {
+            SpectrumMethod::Dense
+        } else {
+            SpectrumMethod::Lanczos
+        }
+    }
+
+    /// Computes the first K eigenpairs (see the module documentation for conventions).
+    pub fn solve(&self) -> Result<Spectrum, SpectralError> {
+        self.solve_with_report().map(|(s, _)| s)
+    }
+
+    /// Like [`Self::solve`], also returning diagnostics.
+    pub fn solve_with_report(&self) -> Result<(Spectrum, SpectrumReport), SpectralError> {
+        let span = tracing::debug_span!("laplace_beltrami", n = self.n_vertices, k = self.params.k);
+        let _guard = span.enter();
+        let k = self.params.k;
+        let na = self.active.len();
+        let c = self.n_components.min(k);
+        let method = self.method();
+        // Reduced, mass-scaled eigenvectors y (φ = y / sqrt(m)) and eigenvalues.
+        let mut y = Mat::<f64>::zeros(na, k);
+        let mut lambda = vec![0.0; k];
+        let null = self.null_vectors();
+        y.as_mut().subcols_mut(0, c).copy_from(null.as_ref().subcols(0, c));
+        let (mut restarts, mut block_solves) = (0, 0);
+        match method {
+            SpectrumMethod::NullSpace => {}
+            SpectrumMethod::Dense => {
+                let (vals, vecs) = self.dense_rest(k - c)?;
+                lambda[c..].copy_from_slice(&vals);
+                y.as_mut().subcols_mut(c, k - c).copy_from(vecs.as_ref());
+            }
+            SpectrumMethod::Lanczos => {
+                let out = self.lanczos_rest(k - c, null.as_ref())?;
+                restarts = out.restarts;
+                block_solves = out.applications;
+                let sigma = self.params.shift;
+                for (j, t) in out.theta.iter().enumerate() {
+                    lambda[c + j] = sigma + 1.0 / t;
+                }
+                y.as_mut().subcols_mut(c, k - c).copy_from(out.vectors.as_ref());
+            }
+        }
+
+        // Rayleigh quotients and residuals in the scaled space:
+        // ‖Lφ − λMφ‖_{M⁻¹} = ‖L̂y − λy‖ and φᵀLφ = yᵀL̂y for ‖y‖ = 1.
+        let mut ly = Mat::<f64>::zeros(na, k);
+        sparse_dense_matmul(ly.as_mut(), Accum::Replace, self.lhat.as_ref(), y.as_ref(), 1.0, Par::Seq);
+        let mut max_res = 0.0f64;
+        let mut residuals = vec![0.0; k];
+        for j in c..k {
+            let yj = y.col_as_slice(j);
+            let lyj = ly.col_as_slice(j);
+            let rq: f64 = yj.iter().zip(lyj).map(|(a, b)| a * b).sum::<f64>();
+            let nn: f64 = yj.iter().map(|a| a * a).sum::<f64>();
+            lambda[j] = (rq / nn).max(0.0);
+        }
+        for j in 0..k {
+            let (yj, lyj) = (y.col_as_slice(j), ly.col_as_slice(j));
+            let r: f64 = yj.iter().zip(lyj).map(|(a, b)| (b - lambda[j] * a).powi(2)).sum::<f64>().sqrt();
+            residuals[j] = r / lambda[j].max(1.0);
+            max_res = max_res.max(residuals[j]);
+        }
+        // Rayleigh quotients may reorder pairs within round-off: sort (stable) by eigenvalue.
+        let mut order: Vec<usize> = (0..k).collect();
+        order.sort_by(|&a, &b| lambda[a].total_cmp(&lambda[b]));
+
+        let mut count_verified_below = None;
+        if method == SpectrumMethod::Lanczos && self.params.verify {
+            let bound = (1e4 * self.params.tol).max(1e-7);
+            if let Some(bad) = (c..k).find(|&j| !(residuals[j] <= bound)) {
+                tracing::warn!(pair = bad, residual = residuals[bad], bound, "eigenpair residual too large");
+                let found = (c..k).filter(|&j| residuals[j] <= bound).count() + c;
+                return Err(SpectralError::NotConverged { found, wanted: k });
+            }
+            let last = lambda[order[k - 1]];
+            if last > 0.0 {
+                let tau = last * (1.0 - COUNT_MARGIN);
+                let found = lambda.iter().filter(|&&l| l < tau).count();
+                match self.count_below(tau) {
+                    Ok(counted) if counted == found => count_verified_below = Some(tau),
+                    Ok(counted) => {
+                        return Err(SpectralError::MissedEigenvalues { threshold: tau, counted, found });
+                    }
+                    Err(e) => tracing::warn!(error = %e, "eigenvalue count could not be verified"),
+                }
+            }
+        }
+
+        // Scatter to full vertex indexing, φ = y / sqrt(m), with the sign convention.
+        let n = self.n_vertices;
+        let mut eigenvectors = vec![0.0; n * k];
+        let mut eigenvalues = vec![0.0; k];
+        for (dst, &src) in order.iter().enumerate() {
+            eigenvalues[dst] = lambda[src];
+            let out = &mut eigenvectors[dst * n..(dst + 1) * n];
+            let yj = y.col_as_slice(src);
+            for (r, &i) in self.active.iter().enumerate() {
+                out[i] = yj[r] / self.sqrt_mass[r];
+            }
+            apply_sign_convention(out);
+        }
+        let report = SpectrumReport {
+            method,
+            n_components: self.n_components,
+            n_unreferenced: n - na,
+            restarts,
+            block_solves,
+            max_relative_residual: max_res,
+            count_verified_below,
+        };
+        tracing::debug!(?report, "spectrum computed");
+        Ok((
+            Spectrum { eigenvalues, eigenvectors, n_vertices: n, mass: self.mass.clone(), area: self.area },
+            report,
+        ))
+    }
+
+    /// Orthonormal (Euclidean, scaled space) indicator vectors of the components.
+    fn null_vectors(&self) -> Mat<f64> {
+        let na = self.active.len();
+        let mut z = Mat::<f64>::zeros(na, self.n_components);
+        let mut norm2 = vec![0.0; self.n_components];
+        for r in 0..na {
+            let c = self.component[r];
+            z[(r, c)] = self.sqrt_mass[r];
+            norm2[c] += self.sqrt_mass[r] * self.sqrt_mass[r];
+        }
+        for r in 0..na {
+            let c = self.component[r];
+            z[(r, c)] /= norm2[c].sqrt();
+        }
+        z
+    }
+
+    /// Dense solve of the `count` smallest nonzero eigenpairs (after the null space).
+    fn dense_rest(&self, count: usize) -> Result<(Vec<f64>, Mat<f64>), SpectralError> {
+        let na = self.active.len();
+        let a = self.lhat.to_dense();
+        let mut s = Mat::<f64>::zeros(na, 1);
+        let mut u = Mat::<f64>::zeros(na, na);
+        let mut mem = MemBuffer::new(self_adjoint_evd_scratch::<f64>(
+            na,
+            ComputeEigenvectors::Yes,
+            Par::Seq,
+            Default::default(),
+        ));
+        self_adjoint_evd(
+            a.as_ref(),
+            s.as_mut().col_mut(0).as_diagonal_mut(),
+            Some(u.as_mut()),
+            Par::Seq,
+            MemStack::new(&mut mem),
+            Default::default(),
+        )
+        .map_err(|_| SpectralError::DenseEigenFailed)?;
+        // The first n_components eigenvectors span the null space, replaced by the exact
+        // indicators; the others are orthogonal to it.
+        let skip = self.n_components;
+        let vals = (0..count).map(|j| s[(skip + j, 0)].max(0.0)).collect();
+        let vecs = u.as_ref().subcols(skip, count).to_owned();
+        Ok((vals, vecs))
+    }
+
+    fn lanczos_rest(
+        &self,
+        nev: usize,
+        null: MatRef<'_, f64>,
+    ) -> Result<super::lanczos::LanczosOutput, SpectralError> {
+        let factor = self.factor.as_ref().expect("factorised for the Lanczos method");
+        let na = self.active.len();
+        let b = self.params.block_size;
+        let ncv = self.params.max_basis.min(na - self.n_components);
+        let lanczos = BlockLanczos {
+            nev,
+            block: b,
+            ncv,
+            tol: self.params.tol,
+            max_restarts: self.params.max_restarts,
+            seed: self.params.seed,
+        };
+        let llt = LltRef::<usize, f64>::new(&factor.symbolic, &factor.values);
+        let mut mem = MemBuffer::new(factor.symbolic.solve_in_place_scratch::<f64>(b, Par::Seq));
+        let mut op = |x: MatRef<'_, f64>, mut y: MatMut<'_, f64>| {
+            y.copy_from(x);
+            llt.solve_in_place_with_conj(Conj::No, y, Par::Seq, MemStack::new(&mut mem));
+        };
+        let k = self.params.k;
+        let c = self.n_components;
+        lanczos.run(na, null.subcols(0, c), &mut op).map_err(|e| match e {
+            LanczosFailure::NotConverged { found, wanted: _ } => {
+                SpectralError::NotConverged { found: found + c, wanted: k }
+            }
+            LanczosFailure::Exhausted => SpectralError::NotConverged { found: c, wanted: k },
+        })
+    }
+
+    /// `L̂ − shift·I` (same pattern as `L̂`).
+    fn shifted(&self, shift: f64) -> SparseColMat<usize, f64> {
+        let mut a = self.lhat.clone();
+        let vals = a.val_mut();
+        for &p in &self.diag_pos {
+            vals[p] -= shift;
+        }
+        a
+    }
+
+    fn factorize_shifted(&self) -> Result<Factorization, SpectralError> {
+        let a = self.shifted(self.params.shift);
+        let symbolic = factorize_symbolic_cholesky(
+            a.symbolic(),
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            CholeskySymbolicParams {
+                supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
+                ..Default::default()
+            },
+        )
+        .map_err(|e| SpectralError::Factorization(format!("symbolic analysis: {e:?}")))?;
+        let mut values = vec![0.0; symbolic.len_val()];
+        let mut mem =
+            MemBuffer::new(symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()));
+        symbolic
+            .factorize_numeric_llt(
+                &mut values,
+                a.as_ref(),
+                Side::Lower,
+                LltRegularization::default(),
+                Par::Seq,
+                MemStack::new(&mut mem),
+                Default::default(),
+            )
+            .map_err(|e| {
+                SpectralError::Factorization(format!(
+                    "L − σM (σ = {}) is not numerically positive definite ({e:?}); \
+                     the mesh may have badly degenerate triangles",
+                    self.params.shift
+                ))
+            })?;
+        Ok(Factorization { symbolic, values })
+    }
+
+    /// Number of eigenvalues below `tau` (Sylvester inertia of `L̂ − τ I`).
+    fn count_below(&self, tau: f64) -> Result<usize, SpectralError> {
+        let factor = self.factor.as_ref().expect("factorised for the Lanczos method");
+        let symbolic = &factor.symbolic;
+        let a = self.shifted(tau);
+        let mut values = vec![0.0; symbolic.len_val()];
+        let mut mem =
+            MemBuffer::new(symbolic.factorize_numeric_ldlt_scratch::<f64>(Par::Seq, Default::default()));
+        symbolic
+            .factorize_numeric_ldlt(
+                &mut values,
+                a.as_ref(),
+                Side::Lower,
+                LdltRegularization::default(),
+                Par::Seq,
+                MemStack::new(&mut mem),
+                Default::default(),
+            )
+            .map_err(|e| SpectralError::Factorization(format!("LDLᵀ of L − τM: {e:?}")))?;
+        let SymbolicCholeskyRaw::Supernodal(sym) = symbolic.raw() else {
+            return Err(SpectralError::Factorization("expected a supernodal factorisation".into()));
+        };
+        let ldlt = SupernodalLdltRef::<usize, f64>::new(sym, &values);
+        let mut negative = 0;
+        for s in 0..sym.n_supernodes() {
+            let node = ldlt.supernode(s).val();
+            for j in 0..node.ncols() {
+                let d = node[(j, j)];
+                if !d.is_finite() {
+                    return Err(SpectralError::Factorization(
+                        "LDLᵀ of L − τM produced a non-finite pivot".into(),
+                    ));
+                }
+                if d < 0.0 {
+                    negative += 1;
+                }
+            }
+        }
+        Ok(negative)
+    }
+}
+
+/// The first K eigenpairs of `L φ = λ M φ` for `mesh` scaled to unit area, ascending and
+/// M-orthonormal (see the [module documentation](self) for the method and conventions).
+///
+/// ```
+/// use shapeforest::spectral::{compute_spectrum, SpectrumParams};
+/// use shapeforest::synth::icosphere;
+/// let s = compute_spectrum(&icosphere(3, 2.0), &SpectrumParams::new(4)).unwrap();
+/// // Unit-area sphere: λ ≈ l(l+1)·4π, multiplicity 2l+1.
+/// let l1 = 2.0 * 4.0 * std::f64::consts::PI;
+/// assert_eq!(s.eigenvalues[0], 0.0);
+/// assert!(s.eigenvalues[1..4].iter().all(|l| (l - l1).abs() / l1 < 0.01));
+/// ```
+pub fn compute_spectrum(mesh: &Mesh, params: &SpectrumParams) -> Result<Spectrum, SpectralError> {
+    LaplaceBeltramiSolver::new(mesh, params)?.solve()
+}
+
+/// Relative residuals `‖L φ_j − λ_j M φ_j‖_{M⁻¹} / max(λ_j, 1)` of every pair of `spectrum`
+/// against `mesh` (scaled to unit area), recomputed from scratch: an independent check of any
+/// spectrum, wherever it came from. Vertices without mass are skipped when the residual is
+/// zero there and make the result infinite otherwise.
+///
+/// ```
+/// use shapeforest::spectral::{dense_spectrum, relative_residuals};
+/// use shapeforest::synth::icosphere;
+/// let m = icosphere(2, 1.0);
+/// let s = dense_spectrum(&m, 5).unwrap();
+/// assert!(relative_residuals(&m, &s).unwrap().iter().all(|&r| r < 1e-10));
+/// ```
+pub fn relative_residuals(mesh: &Mesh, spectrum: &Spectrum) -> Result<Vec<f64>, SpectralError> {
+    let n = mesh.n_vertices();
+    if spectrum.n_vertices != n || spectrum.mass.len() != n || spectrum.eigenvectors.len() != n * spectrum.k()
+    {
+        return Err(SpectralError::SizeMismatch { mesh: n, spectrum: spectrum.n_vertices });
+    }
+    let l = cotan_laplacian(mesh);
+    let k = spectrum.k();
+    let mut lphi = Mat::<f64>::zeros(n, k);
+    sparse_dense_matmul(lphi.as_mut(), Accum::Replace, l.as_ref(), spectrum.vectors(), 1.0, Par::Seq);
+    Ok((0..k)
+        .map(|j| {
+            let lam = spectrum.eigenvalues[j];
+            let phi = spectrum.phi(j);
+            let mut acc = 0.0;
+            for i in 0..n {
+                let r = lphi[(i, j)] - lam * spectrum.mass[i] * phi[i];
+                if spectrum.mass[i] > 0.0 {
+                    acc += r * r / spectrum.mass[i];
+                } else if r != 0.0 {
+                    acc = f64::INFINITY;
+                }
+            }
+            acc.sqrt() / lam.max(1.0)
+        })
+        .collect())
+}
+
+/// Flips `v` so that its entry of largest magnitude is positive; among entries within a
+/// relative 1e-6 of the largest magnitude the one with the smallest index decides.
+fn apply_sign_convention(v: &mut [f64]) {
+    let max = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if max == 0.0 {
+        return;
+    }
+    if let Some(&lead) = v.iter().find(|x| x.abs() >= max * (1.0 - 1e-6)) {
+        if lead < 0.0 {
+            for x in v.iter_mut() {
+                *x = -*x;
+            }
+        }
+    }
+}
+
+/// Union–find with path halving, labelling components by their smallest member.
+struct UnionFind {
+    parent: Vec<usize>,
+}
+
+impl UnionFind {
+    fn new(n: usize) -> Self {
+        Self { parent: (0..n).collect() }
+    }
+
+    fn find(&mut self, mut x: usize) -> usize {
+        while self.parent[x] != x {
+            self.parent[x] = self.parent[self.parent[x]];
+            x = self.parent[x];
+        }
+        x
+    }
+
+    fn union(&mut self, a: usize, b: usize) {
+        let (ra, rb) = (self.find(a), self.find(b));
+        if ra != rb {
+            // The smaller index becomes the root: roots are the smallest members.
+            let (lo, hi) = (ra.min(rb), ra.max(rb));
+            self.parent[hi] = lo;
+        }
+    }
+
+    /// Component label per element, labels `0..count` in order of smallest member.
+    fn labels(&mut self) -> (Vec<usize>, usize) {
+        let n = self.parent.len();
+        let mut label = vec![usize::MAX; n];
+        let mut out = vec![0; n];
+        let mut count = 0;
+        for i in 0..n {
+            let r = self.find(i);
+            if label[r] == usize::MAX {
+                label[r] = count;
+                count += 1;
+            }
+            out[i] = label[r];
+        }
+        (out, count)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::{icosphere, torus};
+
+    #[test]
+    fn sign_convention_makes_largest_entry_positive() {
+        let mut v = vec![0.1, -0.9, 0.3];
+        apply_sign_convention(&mut v);
+        assert_eq!(v, vec![-0.1, 0.9, -0.3]);
+        // Antisymmetric: first of the tied maxima decides.
+        let mut w = vec![0.0, -0.5, 0.5, 0.2];
+        apply_sign_convention(&mut w);
+        assert_eq!(w, vec![0.0, 0.5, -0.5, -0.2]);
+    }
+
+    #[test]
+    fn union_find_labels_by_smallest_member() {
+        let mut uf = UnionFind::new(5);
+        uf.union(4, 1);
+        uf.union(3, 2);
+        let (labels, count) = uf.labels();
+        assert_eq!(count, 3);
+        assert_eq!(labels, vec![0, 1, 2, 2, 1]);
+    }
+
+    #[test]
+    fn inertia_count_matches_dense_eigenvalues() {
+        let mesh = torus(30, 20, 1.0, 0.4);
+        let params = SpectrumParams { dense_threshold: 0, ..SpectrumParams::new(10) };
+        let solver = LaplaceBeltramiSolver::new(&mesh, &params).unwrap();
+        assert_eq!(solver.method(), SpectrumMethod::Lanczos);
+        let dense = super::super::dense_spectrum(&mesh, 40).unwrap();
+        for &tau in &[1.0, 50.0, 200.0] {
+            let expect = dense.eigenvalues.iter().filter(|&&l| l < tau).count();
+            assert!(expect < 40);
+            assert_eq!(solver.count_below(tau).unwrap(), expect, "tau = {tau}");
+        }
+    }
+
+    #[test]
+    fn check_names_each_bad_field() {
+        let base = SpectrumParams::new(10);
+        let cases: Vec<(SpectrumParams, &str)> = vec![
+            (SpectrumParams { k: 0, ..base.clone() }, "k"),
+            (SpectrumParams { shift: 0.0, ..base.clone() }, "shift"),
+            (SpectrumParams { shift: f64::NAN, ..base.clone() }, "shift"),
+            (SpectrumParams { block_size: 0, ..base.clone() }, "block_size"),
+            (SpectrumParams { max_basis: 20, ..base.clone() }, "max_basis"),
+            (SpectrumParams { tol: 0.0, ..base.clone() }, "tol"),
+            (SpectrumParams { tol: 0.5, ..base.clone() }, "tol"),
+            (SpectrumParams { max_restarts: 0, ..base.clone() }, "max_restarts"),
+        ];
+        for (p, field) in cases {
+            match p.check() {
+                Err(SpectralError::InvalidParams { field: f, reason }) => {
+                    assert_eq!(f, field);
+                    assert!(!reason.is_empty());
+                }
+                other => panic!("{field}: expected InvalidParams, got {other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn null_space_only_when_k_is_small() {
+        let s = LaplaceBeltramiSolver::new(&icosphere(1, 1.0), &SpectrumParams::new(1)).unwrap();
+        assert_eq!(s.method(), SpectrumMethod::NullSpace);
+        let sp = s.solve().unwrap();
+        assert_eq!(sp.eigenvalues, vec![0.0]);
+        // Constant 1/sqrt(total mass) = 1 on the unit-area mesh.
+        assert!(sp.phi(0).iter().all(|&x| (x - 1.0).abs() < 1e-12));
+    }
+}
