@@ -394,12 +394,12 @@ impl LaplaceBeltramiSolver {
         sparse_dense_matmul(ly.as_mut(), Accum::Replace, self.lhat.as_ref(), y.as_ref(), 1.0, Par::Seq);
         let mut max_res = 0.0f64;
         let mut residuals = vec![0.0; k];
-        for j in c..k {
+        for (j, lam) in lambda.iter_mut().enumerate().skip(c) {
             let yj = y.col_as_slice(j);
             let lyj = ly.col_as_slice(j);
             let rq: f64 = yj.iter().zip(lyj).map(|(a, b)| a * b).sum::<f64>();
             let nn: f64 = yj.iter().map(|a| a * a).sum::<f64>();
-            lambda[j] = (rq / nn).max(0.0);
+            *lam = (rq / nn).max(0.0);
         }
         for j in 0..k {
             let (yj, lyj) = (y.col_as_slice(j), ly.col_as_slice(j));
@@ -414,7 +414,7 @@ impl LaplaceBeltramiSolver {
         let mut count_verified_below = None;
         if method == SpectrumMethod::Lanczos && self.params.verify {
             let bound = (1e3 * self.params.tol).max(1e-8);
-            if let Some(bad) = (c..k).find(|&j| !(residuals[j] <= bound)) {
+            if let Some(bad) = (c..k).find(|&j| residuals[j].is_nan() || residuals[j] > bound) {
                 tracing::warn!(pair = bad, residual = residuals[bad], bound, "eigenpair residual too large");
                 let found = (c..k).filter(|&j| residuals[j] <= bound).count() + c;
                 return Err(SpectralError::NotConverged { found, wanted: k });
@@ -796,7 +796,7 @@ impl UnionFind {
     fn labels(&mut self) -> (Vec<usize>, usize) {
         let n = self.parent.len();
         let mut label = vec![usize::MAX; n];
-        let mut out = vec![0; n];
+        let mut out = Vec::with_capacity(n);
         let mut count = 0;
         for i in 0..n {
             let r = self.find(i);
@@ -804,7 +804,7 @@ impl UnionFind {
                 label[r] = count;
                 count += 1;
             }
-            out[i] = label[r];
+            out.push(label[r]);
         }
         (out, count)
     }
