@@ -28,6 +28,8 @@ use faer::linalg::matmul::matmul;
 use faer::reborrow::{IntoConst, Reborrow, ReborrowMut};
 use faer::{Accum, Mat, MatMut, MatRef, Par};
 use rand::{Rng, SeedableRng};
+
+use super::kernels::{nn_subtract, tn_product};
 use rand_chacha::ChaCha8Rng;
 
 /// Settings of one block Lanczos run (already validated by the caller).
@@ -75,6 +77,8 @@ const WEAK: f64 = 1e-8;
 /// Columns that fell below this fraction are numerically in the span of the basis: they are
 /// replaced by fresh random directions.
 const BREAKDOWN: f64 = 1e-13;
+/// A reorthogonalisation pass that shrinks a column below this fraction is repeated.
+const DGKS: f64 = 0.7;
 
 impl BlockLanczos {
     /// Runs the iteration. `op(x, y)` must write `y = C x` for a block `x` of `b` columns;
@@ -110,6 +114,9 @@ impl BlockLanczos {
         ));
         let mut restart_tmp = Mat::<f64>::zeros(n, ncv);
         let mut norms = vec![0.0; b];
+        let mut mid_norms = vec![0.0; b];
+        // Basis size at which the current expansion started (right after a (re)start).
+        let mut fresh = 0usize;
 
         // Random start block, orthonormal and orthogonal to the locked vectors.
         for j in 0..b {
@@ -145,14 +152,35 @@ impl BlockLanczos {
                 // Locked vectors: C keeps their complement invariant, this only removes drift.
                 project_out(locked, w.rb_mut(), lcoef.as_mut(), par);
                 project_out(locked, w.rb_mut(), lcoef.as_mut(), par);
-                // Full reorthogonalisation against the basis, twice.
+                // First pass: the three-term recurrence (the previous and current blocks), or
+                // the whole basis for the first block after a restart, which couples to every
+                // kept Ritz vector. Second pass: full reorthogonalisation against the basis;
+                // a third one only if the second removed much (DGKS criterion).
+                let lo = if size == fresh { 0 } else { size - b };
                 let mut c1 = coef.as_mut().subrows_mut(0, m);
-                let mut c2 = coef2.as_mut().subrows_mut(0, m);
-                project_out(basis, w.rb_mut(), c1.rb_mut(), par);
-                project_out(basis, w.rb_mut(), c2.rb_mut(), par);
-                for jj in 0..b {
-                    for ii in 0..m {
-                        c1[(ii, jj)] += c2[(ii, jj)];
+                c1.fill(0.0);
+                project_out(basis.subcols(lo, m - lo), w.rb_mut(), c1.rb_mut().subrows_mut(lo, m - lo), par);
+                for (j, nrm) in mid_norms.iter_mut().enumerate() {
+                    *nrm = norm(col(w.rb(), j));
+                }
+                let mut passes = 1;
+                loop {
+                    let mut c2 = coef2.as_mut().subrows_mut(0, m);
+                    project_out(basis, w.rb_mut(), c2.rb_mut(), par);
+                    for jj in 0..b {
+                        for ii in 0..m {
+                            c1[(ii, jj)] += c2[(ii, jj)];
+                        }
+                    }
+                    passes += 1;
+                    let mut worst = f64::INFINITY;
+                    for (j, before) in mid_norms.iter_mut().enumerate() {
+                        let after = norm(col(w.rb(), j));
+                        worst = worst.min(after / before.max(f64::MIN_POSITIVE));
+                        *before = after;
+                    }
+                    if worst > DGKS || passes >= 4 {
+                        break;
                     }
                 }
                 // Column block [size, size+b) of H and its mirror.
@@ -248,6 +276,7 @@ impl BlockLanczos {
                 h[(i, i)] = t;
             }
             size = keep;
+            fresh = keep;
             restarts += 1;
         }
     }
@@ -258,8 +287,9 @@ fn project_out(basis: MatRef<'_, f64>, mut w: MatMut<'_, f64>, mut c: MatMut<'_,
     if basis.ncols() == 0 {
         return;
     }
-    matmul(c.rb_mut(), Accum::Replace, basis.transpose(), w.rb(), 1.0, par);
-    matmul(w.rb_mut(), Accum::Add, basis, c.rb(), -1.0, par);
+    let _ = par;
+    tn_product(basis, w.rb(), c.rb_mut());
+    nn_subtract(basis, c.rb(), w.rb_mut());
 }
 
 /// QR of a block already orthogonalised against `locked` and `basis`: `w ← Q`, `r ← R`.

@@ -17,6 +17,7 @@
 
 mod cache;
 mod dense;
+mod kernels;
 mod lanczos;
 mod laplacian;
 pub mod solver;
