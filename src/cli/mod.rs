@@ -1,6 +1,10 @@
 //! Command-line parsing and one module per subcommand.
 
+mod common;
 mod demo;
+mod info;
+mod predict;
+mod train;
 
 use clap::{Parser, Subcommand};
 
@@ -17,15 +21,22 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// Run the method end to end on built-in synthetic data and report what it reached.
+    /// Run the method end to end on built-in synthetic data and report the accuracy reached.
     Demo(demo::DemoArgs),
+    /// Summarise mesh files: counts, area, components, boundary loops, reader warnings.
+    Info(info::InfoArgs),
+    /// Train a forest from labelled shapes and write a model file.
+    Train(train::TrainArgs),
+    /// Label the vertices of a mesh with a trained forest.
+    Predict(predict::PredictArgs),
 }
 
 /// Sets up `tracing` output on stderr.
 pub fn init_tracing(verbose: u8) {
     let default = match verbose {
-        0 => "info",
-        1 => "debug",
+        0 => "warn",
+        1 => "info",
+        2 => "debug",
         _ => "trace",
     };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
@@ -37,5 +48,8 @@ pub fn init_tracing(verbose: u8) {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Demo(args) => demo::run(args),
+        Command::Info(args) => info::run(args),
+        Command::Train(args) => train::run(args),
+        Command::Predict(args) => predict::run(args),
     }
 }

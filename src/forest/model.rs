@@ -217,6 +217,17 @@ impl RandomForestValidParams {
         previous: Option<&RandomForest>,
         set: &TrainingSet,
     ) -> Result<RandomForest, ForestError> {
+        self.fit_with_progress(previous, set, &|_| {})
+    }
+
+    /// [`fit_with`](Self::fit_with), calling `on_tree(index)` as each new tree is finished
+    /// (from worker threads, in completion order) — for progress bars.
+    pub fn fit_with_progress(
+        &self,
+        previous: Option<&RandomForest>,
+        set: &TrainingSet,
+        on_tree: &(dyn Fn(usize) + Sync),
+    ) -> Result<RandomForest, ForestError> {
         let p = &self.0;
         let (k, grid, n_new, first_index, mut trees) = match previous {
             None => {
@@ -253,8 +264,14 @@ impl RandomForestValidParams {
         let data = build_train_data(set, k, grid)?;
         let span = tracing::info_span!("forest_fit", trees = n_new, samples = data.sample_label.len());
         let _g = span.enter();
-        let new_trees: Vec<Tree> =
-            (0..n_new as u64).into_par_iter().map(|t| grow_tree(&data, p, first_index + t)).collect();
+        let new_trees: Vec<Tree> = (0..n_new as u64)
+            .into_par_iter()
+            .map(|t| {
+                let tree = grow_tree(&data, p, first_index + t);
+                on_tree(t as usize);
+                tree
+            })
+            .collect();
         trees.extend(new_trees);
         if trees.len() > p.n_trees {
             let drop = trees.len() - p.n_trees;

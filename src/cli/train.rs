@@ -1,0 +1,192 @@
+//! `shapeforest train`: labelled shapes → a forest model file.
+
+use std::{fs::File, io::BufReader, path::PathBuf, sync::Arc, time::Instant};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use shapeforest::{
+    forest::{labels_identity, read_label_map, RandomForest, TrainingSet, TrainingShape},
+    mesh::Mesh,
+    synth::{creature_family, CreatureParams},
+};
+
+use super::common::{load_mesh, mesh_files, progress, shape_name, spectra};
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// A folder of shapes of one class sharing vertex indexing (e.g. TOSCA's cat0…cat10):
+    /// label = vertex index of the reference (the first file, or --reference).
+    #[arg(long, conflicts_with_all = ["shapes", "synthetic"])]
+    pub class: Option<PathBuf>,
+    /// With --class: only files whose name starts with this (e.g. "cat").
+    #[arg(long, default_value = "")]
+    pub prefix: String,
+    /// With --class: at most this many shapes (in name order).
+    #[arg(long)]
+    pub max_shapes: Option<usize>,
+    /// Explicit training shapes, each followed by its label map via --labels (same order).
+    #[arg(long = "shape", value_name = "MESH")]
+    pub shapes: Vec<PathBuf>,
+    /// Label maps for --shape: one label per vertex per line (blank, -1 or "none" = unlabelled).
+    #[arg(long = "labels", value_name = "FILE")]
+    pub labels: Vec<PathBuf>,
+    /// Label maps are 1-based (like .vts files); a 0 then means unlabelled.
+    #[arg(long)]
+    pub one_based: bool,
+    /// Size of the label set (default: the largest label + 1 over all maps).
+    #[arg(long)]
+    pub n_labels: Option<usize>,
+    /// Train on the built-in synthetic creature family instead of files.
+    #[arg(long)]
+    pub synthetic: bool,
+    /// With --synthetic: vertices per shape.
+    #[arg(long, default_value_t = 5000)]
+    pub vertices: usize,
+    /// With --synthetic: number of training shapes.
+    #[arg(long, default_value_t = 6)]
+    pub n_synthetic: usize,
+    /// Output model file.
+    #[arg(short, long, default_value = "model.sfm")]
+    pub out: PathBuf,
+    /// Eigenpairs per shape (K).
+    #[arg(short, long, default_value_t = 100)]
+    pub k: usize,
+    /// Number of trees.
+    #[arg(long, default_value_t = 15)]
+    pub trees: usize,
+    /// Maximum tree depth.
+    #[arg(long, default_value_t = 25)]
+    pub depth: usize,
+    /// Split candidates per node.
+    #[arg(long, default_value_t = 20)]
+    pub candidates: usize,
+    /// Random seed (training is deterministic given the seed).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Folder caching spectra between runs (keyed by mesh content and K).
+    #[arg(long)]
+    pub cache: Option<PathBuf>,
+}
+
+/// Named meshes with their labels.
+struct Labelled {
+    name: String,
+    mesh: Mesh,
+    labels: Vec<Option<u32>>,
+}
+
+fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
+    if args.synthetic {
+        let fam = creature_family(
+            &CreatureParams { target_vertices: args.vertices, seed: args.seed, ..Default::default() },
+            args.n_synthetic,
+        )?;
+        let n = fam.template.n_vertices();
+        let shapes = fam
+            .shapes
+            .into_iter()
+            .enumerate()
+            .map(|(i, mesh)| Labelled { name: format!("creature{i}"), mesh, labels: labels_identity(n) })
+            .collect();
+        return Ok((shapes, n));
+    }
+    if let Some(dir) = &args.class {
+        let mut files = mesh_files(dir, &args.prefix)?;
+        if let Some(m) = args.max_shapes {
+            files.truncate(m);
+        }
+        let mut shapes = Vec::new();
+        let mut n_labels = None;
+        for path in files {
+            let mesh = match load_mesh(&path) {
+                Ok(m) => m,
+                Err(e) => {
+                    eprintln!("skipping {}: {e:#}", path.display());
+                    continue;
+                }
+            };
+            let n = *n_labels.get_or_insert(mesh.n_vertices());
+            if mesh.n_vertices() != n {
+                eprintln!(
+                    "skipping {}: {} vertices, but the reference has {n}; a class folder needs shared vertex indexing (use --shape/--labels for other shapes)",
+                    path.display(),
+                    mesh.n_vertices()
+                );
+                continue;
+            }
+            shapes.push(Labelled { name: shape_name(&path), mesh, labels: labels_identity(n) });
+        }
+        let n = n_labels.context("no readable shapes in the class folder")?;
+        return Ok((shapes, n));
+    }
+    if args.shapes.is_empty() {
+        bail!("nothing to train on: give --class DIR, --shape MESH --labels FILE (repeated), or --synthetic");
+    }
+    if args.shapes.len() != args.labels.len() {
+        bail!(
+            "{} --shape but {} --labels: give one label map per shape",
+            args.shapes.len(),
+            args.labels.len()
+        );
+    }
+    let bound = args.n_labels.unwrap_or(u32::MAX as usize);
+    let mut shapes = Vec::new();
+    for (mesh_path, label_path) in args.shapes.iter().zip(&args.labels) {
+        let mesh = load_mesh(mesh_path)?;
+        let file = File::open(label_path).with_context(|| format!("cannot open {}", label_path.display()))?;
+        let labels = read_label_map(BufReader::new(file), args.one_based, bound)
+            .with_context(|| format!("in label map {}", label_path.display()))?;
+        shapes.push(Labelled { name: shape_name(mesh_path), mesh, labels });
+    }
+    let n = match args.n_labels {
+        Some(n) => n,
+        None => {
+            shapes.iter().flat_map(|s| s.labels.iter().flatten()).map(|&l| l as usize + 1).max().unwrap_or(0)
+        }
+    };
+    Ok((shapes, n))
+}
+
+pub fn run(args: TrainArgs) -> Result<()> {
+    let params = RandomForest::params()
+        .n_trees(args.trees)
+        .max_depth(args.depth)
+        .candidates_per_node(args.candidates)
+        .seed(args.seed)
+        .check()?;
+    let (shapes, n_labels) = gather(&args)?;
+    if shapes.is_empty() {
+        bail!("no usable training shape");
+    }
+    let t0 = Instant::now();
+    let meshes: Vec<&Mesh> = shapes.iter().map(|s| &s.mesh).collect();
+    let spectra = spectra(&meshes, args.k, args.cache.as_deref(), "spectra")?;
+    eprintln!("spectra of {} shapes in {:.1} s", shapes.len(), t0.elapsed().as_secs_f64());
+    let training: Vec<TrainingShape> = shapes
+        .into_iter()
+        .zip(spectra)
+        .map(|(s, spectrum)| TrainingShape { name: s.name, spectrum, labels: s.labels })
+        .collect();
+    let set = TrainingSet::new(training, n_labels)?;
+    for (name, why) in set.rejected() {
+        eprintln!("rejected {name}: {why}");
+    }
+    let t0 = Instant::now();
+    let bar = Arc::new(progress(args.trees as u64, "trees"));
+    let b = bar.clone();
+    let forest = params.fit_with_progress(None, &set, &move |_| b.inc(1))?;
+    bar.finish_and_clear();
+    eprintln!(
+        "{} trees on {} shapes ({} samples, {} labels) in {:.1} s; mean leaf support {:.2}",
+        forest.n_trees(),
+        set.shapes().len(),
+        set.n_samples(),
+        n_labels,
+        t0.elapsed().as_secs_f64(),
+        forest.mean_leaf_support()
+    );
+    forest.save(&args.out)?;
+    let size = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
+    println!("model written to {} ({:.1} MiB)", args.out.display(), size as f64 / (1u64 << 20) as f64);
+    Ok(())
+}
