@@ -213,7 +213,7 @@ fn model_round_trip_and_bad_files() {
 
     let bytes = std::fs::read(&path).unwrap();
     assert!(matches!(RandomForest::from_bytes(b"OFF\n3 1 0\n"), Err(ForestError::NotAModel)));
-    assert!(matches!(RandomForest::load(dir.path().join("missing")), Err(ForestError::Io(_))));
+    assert!(matches!(RandomForest::load(dir.path().join("missing")), Err(ForestError::Io { .. })));
     let mut v2 = bytes.clone();
     v2[8] = 2;
     let e = RandomForest::from_bytes(&v2).unwrap_err();

@@ -149,13 +149,16 @@ impl RandomForest {
         };
         write().map_err(|e| {
             let _ = std::fs::remove_file(&tmp);
-            ForestError::Io(e)
+            ForestError::Io { path: path.to_path_buf(), source: e }
         })
     }
 
     /// Reads a model written by [`RandomForest::save`].
     pub fn load(path: impl AsRef<Path>) -> Result<RandomForest, ForestError> {
-        let bytes = std::fs::read(path).map_err(ForestError::Io)?;
+        let path = path.as_ref();
+        let bytes =
+            std::fs::read(path).map_err(|e| ForestError::Io { path: path.to_path_buf(), source: e })?;
         Self::from_bytes(&bytes)
+            .map_err(|e| ForestError::InFile { path: path.to_path_buf(), source: Box::new(e) })
     }
 }

@@ -119,8 +119,21 @@ pub enum ForestError {
     #[error(transparent)]
     Descriptor(#[from] crate::descriptor::DescriptorError),
     /// Reading or writing a file failed.
-    #[error("i/o error: {0}")]
-    Io(#[source] std::io::Error),
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// A model file could not be decoded.
+    #[error("{}: {source}", path.display())]
+    InFile {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What is wrong with it.
+        source: Box<ForestError>,
+    },
     /// The file does not start with the model magic bytes.
     #[error("not a shapeforest model file (bad magic bytes)")]
     NotAModel,

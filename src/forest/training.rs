@@ -186,7 +186,8 @@ pub fn read_label_map<R: BufRead>(
 ) -> Result<Vec<Option<u32>>, ForestError> {
     let mut out = Vec::new();
     for (i, line) in reader.lines().enumerate() {
-        let line = line.map_err(ForestError::Io)?;
+        let line =
+            line.map_err(|e| ForestError::LabelMap { line: i + 1, reason: format!("cannot read: {e}") })?;
         let tok = line.split_whitespace().next().unwrap_or("");
         let lower = tok.to_ascii_lowercase();
         if tok.is_empty() || lower == "none" || lower == "nan" || tok == "-1" {
