@@ -113,9 +113,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
 
     let mut rows: Vec<Row> = Vec::new();
     let params = RegularizerParams::default();
-    for t in args.train..args.train + args.test {
+    for (t, (shape, spectrum)) in fam.shapes.iter().zip(&spectra).enumerate().skip(args.train) {
         let t0 = Instant::now();
-        let prediction = forest.predict(&spectra[t])?;
+        let prediction = forest.predict(spectrum)?;
         let t_pred = t0.elapsed().as_secs_f64();
         let test =
             PreparedShape::new(Arc::new(fam.shapes[t].clone()), spectra[t].clone(), HeatParams::default())?;
@@ -123,7 +123,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         let dense = regularize(&test, &reference, &prediction, None, &params)?;
         let t_reg = t0.elapsed().as_secs_f64();
         let raw: Vec<usize> = dense.forest_map.iter().map(|m| m.unwrap_or(0)).collect();
-        let knn_pred = knn.predict(&spectra[t], prediction.mean_support().round().max(1.0) as usize)?;
+        let knn_pred = knn.predict(spectrum, prediction.mean_support().round().max(1.0) as usize)?;
         let knn_dense = regularize(&test, &reference, &knn_pred, None, &params)?;
         let knn_raw: Vec<usize> = knn_dense.forest_map.iter().map(|m| m.unwrap_or(0)).collect();
         for (method, map) in [
@@ -136,7 +136,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
             rows.push(Row { method, strict, symmetric });
         }
         let name = format!("creature{t}");
-        write_mesh(args.out.join(format!("{name}.off")), &fam.shapes[t])?;
+        write_mesh(args.out.join(format!("{name}.off")), shape)?;
         let mut text = format!("# {name} vertex -> reference vertex (0-based), shapeforest demo\n");
         for r in &dense.map {
             let _ = writeln!(text, "{r}");

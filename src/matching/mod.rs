@@ -122,7 +122,7 @@ impl GameMatcherParams {
         if self.max_iterations == 0 {
             return bad("max_iterations", "must be at least 1");
         }
-        if !(self.tolerance >= 0.0) {
+        if self.tolerance.is_nan() || self.tolerance < 0.0 {
             return bad("tolerance", "must be ≥ 0");
         }
         if !(0.0..1.0).contains(&self.support_threshold) {
