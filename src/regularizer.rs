@@ -294,14 +294,10 @@ pub fn regularize(
             0.0
         }
     };
-    let mut game = game_theoretic_matching(
-        &candidates,
-        &d_test,
-        samples.len(),
-        &d_ref,
-        ref_points.len(),
-        &params.matcher,
-    )?;
+    let play = |candidates: &[Candidate]| {
+        game_theoretic_matching(candidates, &d_test, samples.len(), &d_ref, ref_points.len(), &params.matcher)
+    };
+    let mut game = play(&candidates)?;
     let mut orientation_score = group_score(&game);
     let mut mirror_rejected = false;
     if orientation_score < 0.0 {
@@ -311,14 +307,7 @@ pub fn regularize(
             .copied()
             .filter(|c| agreement(samples[c.test], ref_points[c.reference]) > 0.0)
             .collect();
-        let second = game_theoretic_matching(
-            &kept,
-            &d_test,
-            samples.len(),
-            &d_ref,
-            ref_points.len(),
-            &params.matcher,
-        )?;
+        let second = play(&kept)?;
         let second_score = group_score(&second);
         if second_score > orientation_score && !second.matches.is_empty() {
             game = second;

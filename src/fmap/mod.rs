@@ -326,12 +326,23 @@ pub fn point_to_point(
     reference: &Spectrum,
     c: MatRef<'_, f64>,
 ) -> Result<Vec<usize>, FmapError> {
+    let emb = pulled_back_embedding(test, reference, c)?;
+    Ok(nearest_rows(emb.as_ref(), basis(reference, c.ncols())))
+}
+
+/// The test shape's spectral embedding mapped into the reference basis, `Φ_M[:, :k_test] C`
+/// (`n_test × k_ref`), after checking the basis sizes.
+fn pulled_back_embedding(
+    test: &Spectrum,
+    reference: &Spectrum,
+    c: MatRef<'_, f64>,
+) -> Result<Mat<f64>, FmapError> {
     let (kt, kr) = (c.nrows(), c.ncols());
     check_basis("test", test, kt)?;
     check_basis("reference", reference, kr)?;
     let mut emb = Mat::zeros(test.n_vertices, kr);
     matmul(emb.as_mut(), Accum::Replace, basis(test, kt), c, 1.0, Par::rayon(0));
-    Ok(nearest_rows(emb.as_ref(), basis(reference, kr)))
+    Ok(emb)
 }
 
 /// Point-to-point map in the other direction, `R → M` (reference vertex → test vertex), of the
@@ -341,12 +352,8 @@ pub fn point_to_point_reverse(
     reference: &Spectrum,
     c: MatRef<'_, f64>,
 ) -> Result<Vec<usize>, FmapError> {
-    let (kt, kr) = (c.nrows(), c.ncols());
-    check_basis("test", test, kt)?;
-    check_basis("reference", reference, kr)?;
-    let mut emb = Mat::zeros(test.n_vertices, kr);
-    matmul(emb.as_mut(), Accum::Replace, basis(test, kt), c, 1.0, Par::rayon(0));
-    Ok(nearest_rows(basis(reference, kr), emb.as_ref()))
+    let emb = pulled_back_embedding(test, reference, c)?;
+    Ok(nearest_rows(basis(reference, c.ncols()), emb.as_ref()))
 }
 
 /// Point-to-point map `T: M → R` restricted to candidates: each test vertex goes to the
@@ -360,9 +367,6 @@ pub fn point_to_point_restricted<S: SoftCorrespondence + ?Sized>(
     c: MatRef<'_, f64>,
     soft: &S,
 ) -> Result<Vec<usize>, FmapError> {
-    let (kt, kr) = (c.nrows(), c.ncols());
-    check_basis("test", test, kt)?;
-    check_basis("reference", reference, kr)?;
     if soft.n_test_vertices() != test.n_vertices {
         return Err(FmapError::SizeMismatch(format!(
             "the candidates cover {} test vertices, the test shape has {}",
@@ -370,8 +374,8 @@ pub fn point_to_point_restricted<S: SoftCorrespondence + ?Sized>(
             test.n_vertices
         )));
     }
-    let mut emb = Mat::zeros(test.n_vertices, kr);
-    matmul(emb.as_mut(), Accum::Replace, basis(test, kt), c, 1.0, Par::rayon(0));
+    let kr = c.ncols();
+    let emb = pulled_back_embedding(test, reference, c)?;
     let phi_r = basis(reference, kr);
     let mut out: Vec<Option<usize>> = vec![None; test.n_vertices];
     out.par_iter_mut().enumerate().for_each(|(m, slot)| {
