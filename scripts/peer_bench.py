@@ -4,7 +4,7 @@ same meshes, with the same cotangent Laplacian, lumped mass, unit-area scaling a
 
 Usage: peer_bench.py MANIFEST.json OUT.json
 MANIFEST lists meshes written by `shapeforest bench` (OFF files) with the parameters used:
-{"k": 100, "shift": -0.01, "sources": 50, "meshes": [{"name": ..., "path": ..., "sources": [...]}, ...]}
+{"k": 100, "shift": -0.01, "n_sources": 50, "meshes": [{"name": ..., "path": ..., "sources": [...]}, ...]}
 Writes per mesh: eigsh seconds and eigenvalues, heat-method setup and solve seconds.
 """
 import json
@@ -60,16 +60,26 @@ def cotan_laplacian_and_mass(v, f):
     return L, mass
 
 
+def _version(package):
+    try:
+        from importlib.metadata import version
+        return version(package)
+    except Exception:  # noqa: BLE001 - any metadata failure just means "unknown"
+        return "installed"
+
+
 def main():
     manifest = json.load(open(sys.argv[1]))
     out = {"peer": {}, "meshes": []}
     try:
         import potpourri3d as pp3d
-        out["peer"]["potpourri3d"] = getattr(pp3d, "__version__", "installed")
+        out["peer"]["potpourri3d"] = _version("potpourri3d")
     except ImportError:
         pp3d = None
+        print("potpourri3d not installed: heat-method peer timings skipped", file=sys.stderr)
     import scipy
     out["peer"]["scipy"] = scipy.__version__
+    out["peer"]["numpy"] = np.__version__
     k, shift = manifest["k"], manifest["shift"]
     for m in manifest["meshes"]:
         v, f = read_off(m["path"])

@@ -1,5 +1,6 @@
 //! Command-line parsing and one module per subcommand.
 
+mod bench;
 mod demo;
 
 use clap::{Parser, Subcommand};
@@ -19,6 +20,8 @@ pub struct Cli {
 pub enum Command {
     /// Run the method end to end on built-in synthetic data and report what it reached.
     Demo(demo::DemoArgs),
+    /// Time shapeforest on benchmark meshes (`--out`), or compare with the peers' timings (`--report`).
+    Bench(bench::BenchArgs),
 }
 
 /// Sets up `tracing` output on stderr.
@@ -37,5 +40,6 @@ pub fn init_tracing(verbose: u8) {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Demo(args) => demo::run(args),
+        Command::Bench(args) => bench::run(args),
     }
 }
