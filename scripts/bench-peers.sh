@@ -32,6 +32,11 @@ else
 fi
 echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo 2>/dev/null | cut -d: -f2 | sed 's/^ //')" >&2
 ./target/release/shapeforest bench --out "$work" "$@"
-OMP_NUM_THREADS=$(nproc) OPENBLAS_NUM_THREADS=$(nproc) \
+# BLAS threads of the peer: 1 by default. scipy's eigsh is SuperLU (sequential) plus ARPACK, and
+# on a 2-core machine shared with other work, 2 OpenBLAS threads made it 3-10x slower (spinning
+# threads) than 1; set PEER_THREADS to try more.
+peer_threads=${PEER_THREADS:-1}
+echo "# peer BLAS threads: $peer_threads" >&2
+OMP_NUM_THREADS=$peer_threads OPENBLAS_NUM_THREADS=$peer_threads MKL_NUM_THREADS=$peer_threads \
   "$venv/bin/python" scripts/peer_bench.py "$work/manifest.json" "$work/peer.json"
 ./target/release/shapeforest bench --report "$work"

@@ -74,6 +74,8 @@ pub struct Manifest {
     pub shift: f64,
     /// Number of distance sources per mesh.
     pub n_sources: usize,
+    /// Best-of count the peer should use too.
+    pub repeat: usize,
     /// How the sources were chosen.
     pub sources_method: String,
     /// The meshes.
@@ -275,6 +277,7 @@ fn run_out(args: &BenchArgs, out: &Path) -> Result<()> {
         k: args.k,
         shift: params.shift,
         n_sources: args.sources,
+        repeat: args.repeat.max(1),
         sources_method: "Euclidean farthest point sampling from the vertex farthest from the centroid".into(),
         meshes: Vec::new(),
     };
