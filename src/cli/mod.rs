@@ -1,5 +1,6 @@
 //! Command-line parsing and one module per subcommand.
 
+mod bench;
 mod common;
 mod demo;
 mod info;
@@ -29,6 +30,8 @@ pub enum Command {
     Train(train::TrainArgs),
     /// Label the vertices of a mesh with a trained forest.
     Predict(predict::PredictArgs),
+    /// Time shapeforest on benchmark meshes (`--out`), or compare with the peers' timings (`--report`).
+    Bench(bench::BenchArgs),
 }
 
 /// Sets up `tracing` output on stderr.
@@ -51,5 +54,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(args) => info::run(args),
         Command::Train(args) => train::run(args),
         Command::Predict(args) => predict::run(args),
+        Command::Bench(args) => bench::run(args),
     }
 }
