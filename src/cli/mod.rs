@@ -1,6 +1,8 @@
 //! Command-line parsing and one module per subcommand.
 
 mod demo;
+mod eval;
+mod match_cmd;
 
 use clap::{Parser, Subcommand};
 
@@ -19,6 +21,10 @@ pub struct Cli {
 pub enum Command {
     /// Run the method end to end on built-in synthetic data and report what it reached.
     Demo(demo::DemoArgs),
+    /// Evaluate the method on a class of shapes with ground truth (the paper's protocol).
+    Eval(eval::EvalArgs),
+    /// Match a mesh to a reference with a trained model; write the map and coloured meshes.
+    Match(match_cmd::MatchArgs),
 }
 
 /// Sets up `tracing` output on stderr.
@@ -37,5 +43,7 @@ pub fn init_tracing(verbose: u8) {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Demo(args) => demo::run(args),
+        Command::Eval(args) => eval::run(args),
+        Command::Match(args) => match_cmd::run(args),
     }
 }
