@@ -65,12 +65,8 @@ fn protocol_on_a_small_family_beats_raw_wks_knn() {
 
 #[test]
 fn protocol_rejects_inconsistent_truth_tables() {
-    let fam = family(600, 2);
-    let mut shapes: Vec<ProtocolShape> = fam
-        .shapes
-        .iter()
-        .enumerate()
-        .map(|(i, m)| ProtocolShape::identity(format!("s{i}"), Arc::new(m.clone())))
+    let mut shapes: Vec<ProtocolShape> = (0..2)
+        .map(|i| ProtocolShape::identity(format!("s{i}"), Arc::new(shapeforest::synth::icosphere(2, 1.0))))
         .collect();
     shapes[1].truth.pop();
     let e = run_protocol(&shapes, None, &ProtocolParams::default(), None).err().expect("error");
@@ -155,7 +151,7 @@ fn match_writes_all_outputs_and_the_map_round_trips() {
 
     // A reference whose vertex count differs from the model's labels is refused clearly.
     let other = dir.path().join("small.off");
-    write_mesh(&other, &family(600, 1).shapes[0]).unwrap();
+    write_mesh(&other, &shapeforest::synth::icosphere(3, 1.0)).unwrap();
     let o = bin()
         .args(["match", "--model"])
         .arg(&model)
