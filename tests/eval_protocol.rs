@@ -69,9 +69,9 @@ fn protocol_rejects_inconsistent_truth_tables() {
         .map(|i| ProtocolShape::identity(format!("s{i}"), Arc::new(shapeforest::synth::icosphere(2, 1.0))))
         .collect();
     shapes[1].truth.pop();
-    let e = run_protocol(&shapes, None, &ProtocolParams::default(), None).err().expect("error");
+    let e = run_protocol(&shapes, None, &ProtocolParams::default(), None).expect_err("error");
     assert!(e.to_string().contains("s1"), "{e}");
-    let e = run_protocol(&shapes[..1], None, &ProtocolParams::default(), None).err().expect("error");
+    let e = run_protocol(&shapes[..1], None, &ProtocolParams::default(), None).expect_err("error");
     assert!(e.to_string().contains("at least 2"), "{e}");
 }
 

@@ -324,6 +324,10 @@ fn plan(n_shapes: usize, params: &ProtocolParams) -> Vec<(usize, Vec<usize>)> {
     out
 }
 
+/// A reference ready for evaluation: index, prepared shape, distance fields from the evaluated
+/// ground-truth points, symmetry in vertex space.
+type PreparedReference = (usize, PreparedShape, Mat<f64>, Option<Vec<usize>>);
+
 fn invalid(msg: String) -> Error {
     EvalError::InvalidInput(msg).into()
 }
@@ -419,7 +423,7 @@ pub fn run_protocol(
     };
 
     let mut forests: HashMap<Vec<usize>, (Arc<RandomForest>, Arc<WksKnn>)> = HashMap::new();
-    let mut reference_cache: Option<(usize, PreparedShape, Mat<f64>, Option<Vec<usize>>)> = None;
+    let mut reference_cache: Option<PreparedReference> = None;
     let mut tests = Vec::with_capacity(jobs.len());
     for (done, (t, train)) in jobs.iter().enumerate() {
         let test_shape = &shapes[*t];
