@@ -27,6 +27,9 @@ pub enum Error {
     /// A functional-map computation failed.
     #[error(transparent)]
     Fmap(#[from] crate::fmap::FmapError),
+    /// An evaluation could not be carried out.
+    #[error(transparent)]
+    Eval(#[from] crate::eval::EvalError),
     /// Generating a synthetic shape failed.
     #[error(transparent)]
     Synth(#[from] crate::synth::SynthError),

@@ -3,7 +3,9 @@
 mod bench;
 mod common;
 mod demo;
+mod eval;
 mod info;
+mod match_cmd;
 mod predict;
 mod train;
 
@@ -32,6 +34,10 @@ pub enum Command {
     Predict(predict::PredictArgs),
     /// Time shapeforest on benchmark meshes (`--out`), or compare with the peers' timings (`--report`).
     Bench(bench::BenchArgs),
+    /// Evaluate the method on a class of shapes with ground truth (the paper's protocol).
+    Eval(eval::EvalArgs),
+    /// Match a mesh to a reference with a trained model; write the map and coloured meshes.
+    Match(match_cmd::MatchArgs),
 }
 
 /// Sets up `tracing` output on stderr.
@@ -55,5 +61,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(args) => train::run(args),
         Command::Predict(args) => predict::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Eval(args) => eval::run(args),
+        Command::Match(args) => match_cmd::run(args),
     }
 }

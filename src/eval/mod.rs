@@ -11,6 +11,7 @@
 //! geodesic solver: the crate's heat method with a fine time step, or fast marching), so the
 //! numeric core here is solver-agnostic and pure.
 
+pub mod protocol;
 mod report;
 
 pub use report::{plot_curves_svg, write_curves_csv, CurveSeries};
@@ -25,6 +26,9 @@ pub enum EvalError {
     /// Input sizes do not agree.
     #[error("size mismatch: {0}")]
     SizeMismatch(String),
+    /// The protocol's input is unusable (names the shape or setting at fault).
+    #[error("invalid evaluation input: {0}")]
+    InvalidInput(String),
     /// Writing a report failed.
     #[error("cannot write {path}: {message}")]
     Write {

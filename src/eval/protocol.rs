@@ -1,0 +1,578 @@
+//! The paper's evaluation protocol on a class of shapes with ground truth.
+//!
+//! For each test shape of a class: train a forest on `n_train` other shapes of the class (a
+//! seeded random choice), predict the test shape's posterior, regularise it against a reference
+//! (the first training shape) and measure the normalised geodesic error (see [`super`]) at a
+//! fixed, seeded subset of ground-truth points. Four methods are measured on the same points:
+//!
+//! | [`Method`] | map |
+//! |---|---|
+//! | `ForestRaw` | the forest's maximum-a-posteriori label of each vertex |
+//! | `ForestRegularized` | the regulariser's output ([`crate::regularizer::DenseMap::map`]) on the forest posterior |
+//! | `WksKnnRaw` | the most voted label of the `k` nearest training WKS descriptors |
+//! | `WksKnnRegularized` | the same regulariser on the WKS k-NN posterior |
+//!
+//! The WKS k-NN baseline uses the forest's energy range and eigenpair count, and `k` = the
+//! forest's mean posterior support on the test shape (rounded), so both give the regulariser
+//! posteriors of the same size.
+//!
+//! **Ground truth.** Every shape carries a table `truth[label] = vertex`: the labels are the
+//! points that correspond across the class. For a TOSCA/SCAPE class with common vertex indexing
+//! the table is the identity; for remeshed shapes (`.vts` files) row `k` of each shape's table is
+//! its vertex for correspondence `k`. The forest is trained with these labels, and the label →
+//! reference-vertex table of the regulariser is the reference's truth table.
+//!
+//! **Errors.** For an evaluated label `k`, the test vertex `truth_test[k]` is mapped to a
+//! reference vertex `r`; its error is the geodesic distance on the reference from
+//! `truth_ref[k]` to `r`, divided by `√area(reference)`. Distances come from the crate's heat
+//! method ([`HeatMethodSolver`], time step `t = h²` with `h` the mean edge length, as Crane et
+//! al. recommend), one distance field per evaluated point, computed once per reference. With a
+//! symmetry map (a permutation of the labels: `symmetry[k]` is the left/right mirror of `k`),
+//! symmetric errors (a mirrored match counts as correct) are reported beside the strict ones.
+//!
+//! The protocol is pure orchestration: no printing; progress is reported through an optional
+//! callback. Spectra go through a [`SpectrumCache`] when a cache directory is given.
+
+use std::{collections::HashMap, path::PathBuf, sync::Arc, time::Instant};
+
+use faer::Mat;
+use rand::{seq::index::sample, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::{cumulative_curve, geodesic_errors, CurveSeries, ErrorSummary, EvalError};
+use crate::{
+    descriptor::WksParams,
+    forest::{Prediction, RandomForest, RandomForestParams, TrainingSet, TrainingShape, WksKnn},
+    geodesic::{HeatMethodSolver, HeatParams},
+    mesh::Mesh,
+    regularizer::{regularize, PreparedShape, RegularizerParams},
+    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
+    Error,
+};
+
+/// One shape of the evaluated class with its ground-truth table.
+#[derive(Clone, Debug)]
+pub struct ProtocolShape {
+    /// Name used in reports (e.g. the file stem).
+    pub name: String,
+    /// The mesh.
+    pub mesh: Arc<Mesh>,
+    /// `truth[label]` = this shape's vertex for the label; the same length for every shape.
+    pub truth: Vec<usize>,
+}
+
+impl ProtocolShape {
+    /// A shape whose labels are its vertex indices (TOSCA/SCAPE classes, synthetic families).
+    pub fn identity(name: impl Into<String>, mesh: Arc<Mesh>) -> Self {
+        let truth = (0..mesh.n_vertices()).collect();
+        Self { name: name.into(), mesh, truth }
+    }
+}
+
+/// Settings of the protocol.
+#[derive(Clone, Debug)]
+pub struct ProtocolParams {
+    /// Training shapes per test shape (default 6, as in the paper).
+    pub n_train: usize,
+    /// At most this many test shapes (default: all).
+    pub max_tests: Option<usize>,
+    /// Draw one training set for all tests (the tests are the remaining shapes) instead of one
+    /// per test shape. Default `false`.
+    pub train_once: bool,
+    /// Seed of the training-set and evaluation-point choices.
+    pub seed: u64,
+    /// Number of evaluated ground-truth points per test (default 1000; all when fewer labels).
+    pub eval_points: usize,
+    /// Forest hyper-parameters.
+    pub forest: RandomForestParams,
+    /// Spectrum settings (default 100 eigenpairs).
+    pub spectrum: SpectrumParams,
+    /// Regulariser settings.
+    pub regularizer: RegularizerParams,
+    /// Heat-method settings of the evaluation distance fields.
+    pub eval_heat: HeatParams,
+    /// Spectrum cache directory (`None`: no cache).
+    pub cache_dir: Option<PathBuf>,
+    /// Steps of the cumulative curves (default 100).
+    pub curve_steps: usize,
+}
+
+impl Default for ProtocolParams {
+    fn default() -> Self {
+        Self {
+            n_train: 6,
+            max_tests: None,
+            train_once: false,
+            seed: 0,
+            eval_points: 1000,
+            forest: RandomForestParams::default(),
+            spectrum: SpectrumParams::new(100),
+            regularizer: RegularizerParams::default(),
+            eval_heat: HeatParams::default(),
+            cache_dir: None,
+            curve_steps: 100,
+        }
+    }
+}
+
+/// A measured method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Method {
+    /// The forest's maximum-a-posteriori map.
+    ForestRaw,
+    /// The regularised forest (the method of the paper).
+    ForestRegularized,
+    /// The WKS k-NN baseline's most voted label.
+    WksKnnRaw,
+    /// The WKS k-NN posterior through the same regulariser.
+    WksKnnRegularized,
+}
+
+impl Method {
+    /// All methods, in report order.
+    pub const ALL: [Method; 4] =
+        [Method::ForestRaw, Method::ForestRegularized, Method::WksKnnRaw, Method::WksKnnRegularized];
+
+    /// A short name for tables and CSV files.
+    ///
+    /// ```
+    /// use shapeforest::eval::protocol::Method;
+    /// assert_eq!(Method::ForestRegularized.name(), "forest+reg");
+    /// ```
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::ForestRaw => "forest-raw",
+            Method::ForestRegularized => "forest+reg",
+            Method::WksKnnRaw => "wks-knn-raw",
+            Method::WksKnnRegularized => "wks-knn+reg",
+        }
+    }
+}
+
+/// Errors of one method on one test shape.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MethodErrors {
+    /// The method.
+    pub method: Method,
+    /// Strict errors, one per evaluated point.
+    pub strict: Vec<f64>,
+    /// Symmetric errors, when a symmetry map was given.
+    pub symmetric: Option<Vec<f64>>,
+}
+
+/// Seconds spent per stage on one test shape (0 for a stage whose result was reused).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TestTimings {
+    /// Training the forest (0 when a forest for the same training set was reused).
+    pub train_s: f64,
+    /// Fitting the WKS k-NN baseline (0 when reused).
+    pub knn_fit_s: f64,
+    /// Heat-method factorisation of the test shape (and of the reference when new).
+    pub prepare_s: f64,
+    /// Forest prediction.
+    pub predict_s: f64,
+    /// WKS k-NN prediction.
+    pub knn_predict_s: f64,
+    /// Regularising the forest posterior.
+    pub regularize_s: f64,
+    /// Regularising the WKS k-NN posterior.
+    pub knn_regularize_s: f64,
+    /// Distance fields for the evaluation on the reference (0 when reused).
+    pub eval_fields_s: f64,
+}
+
+/// The result of one test shape.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TestResult {
+    /// Test shape (index into the input list).
+    pub test: usize,
+    /// Reference shape (the first training shape).
+    pub reference: usize,
+    /// Training shapes (indices into the input list, sorted).
+    pub training: Vec<usize>,
+    /// Whether the forest was reused from an earlier test with the same training set.
+    pub forest_reused: bool,
+    /// Mean posterior support of the forest on the test shape (also the baseline's `k`).
+    pub mean_support: f64,
+    /// Orientation score of the regularised forest's matches (positive: not mirrored).
+    pub orientation_score: f64,
+    /// Number of sparse matches chosen by the regulariser on the forest posterior.
+    pub n_matches: usize,
+    /// Errors per method, in [`Method::ALL`] order.
+    pub methods: Vec<MethodErrors>,
+    /// Time per stage.
+    pub timings: TestTimings,
+}
+
+impl TestResult {
+    /// The errors of `method`.
+    pub fn errors(&self, method: Method) -> Option<&MethodErrors> {
+        self.methods.iter().find(|m| m.method == method)
+    }
+}
+
+/// The result of the whole protocol.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ProtocolReport {
+    /// Shape names, in input order.
+    pub shape_names: Vec<String>,
+    /// Evaluated labels (the same for every test), sorted.
+    pub eval_labels: Vec<usize>,
+    /// Seconds spent computing (or loading) each shape's spectrum, in input order (0 for shapes
+    /// not used).
+    pub spectrum_s: Vec<f64>,
+    /// Whether symmetric errors were computed.
+    pub has_symmetry: bool,
+    /// One result per test shape.
+    pub tests: Vec<TestResult>,
+}
+
+impl ProtocolReport {
+    /// Errors of `method` pooled over all tests: `(strict, symmetric)`.
+    pub fn pooled(&self, method: Method) -> (Vec<f64>, Option<Vec<f64>>) {
+        let mut strict = Vec::new();
+        let mut sym: Option<Vec<f64>> = self.has_symmetry.then(Vec::new);
+        for t in &self.tests {
+            if let Some(e) = t.errors(method) {
+                strict.extend_from_slice(&e.strict);
+                if let (Some(out), Some(s)) = (sym.as_mut(), e.symmetric.as_ref()) {
+                    out.extend_from_slice(s);
+                }
+            }
+        }
+        (strict, sym)
+    }
+
+    /// Summary of `method` over all tests: `(strict, symmetric)`.
+    pub fn summary(&self, method: Method) -> (ErrorSummary, Option<ErrorSummary>) {
+        let (s, y) = self.pooled(method);
+        (ErrorSummary::of(&s), y.map(|y| ErrorSummary::of(&y)))
+    }
+
+    /// Cumulative curves, one per method (strict), then one per method (symmetric) when a
+    /// symmetry map was given.
+    pub fn curves(&self, steps: usize) -> Vec<CurveSeries> {
+        let mut out = Vec::new();
+        let mut sym = Vec::new();
+        for m in Method::ALL {
+            let (s, y) = self.pooled(m);
+            out.push(CurveSeries { name: m.name().to_string(), curve: cumulative_curve(&s, steps) });
+            if let Some(y) = y {
+                sym.push(CurveSeries {
+                    name: format!("{} (sym)", m.name()),
+                    curve: cumulative_curve(&y, steps),
+                });
+            }
+        }
+        out.extend(sym);
+        out
+    }
+}
+
+/// Progress of [`run_protocol`].
+#[derive(Clone, Copy, Debug)]
+pub enum ProtocolEvent<'a> {
+    /// The spectrum of a shape is ready (`done` of `total`).
+    Spectrum {
+        /// Shapes done.
+        done: usize,
+        /// Shapes in all.
+        total: usize,
+        /// The shape.
+        name: &'a str,
+    },
+    /// A stage of a test started.
+    Stage {
+        /// The test shape.
+        test: &'a str,
+        /// The stage: "train", "predict", "regularize", "baseline", "evaluate".
+        stage: &'static str,
+    },
+    /// A test shape is done (`done` of `total`).
+    TestDone {
+        /// Tests done.
+        done: usize,
+        /// Tests in all.
+        total: usize,
+        /// The test shape.
+        name: &'a str,
+    },
+}
+
+/// The test shapes and their training sets (indices, each training set sorted, reference first
+/// is `training[0]` of the *drawn* order).
+fn plan(n_shapes: usize, params: &ProtocolParams) -> Vec<(usize, Vec<usize>)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(params.seed);
+    let n_train = params.n_train.min(n_shapes - 1);
+    let mut out = Vec::new();
+    if params.train_once {
+        let train = sample(&mut rng, n_shapes, n_train).into_vec();
+        for t in (0..n_shapes).filter(|t| !train.contains(t)) {
+            out.push((t, train.clone()));
+        }
+    } else {
+        for t in 0..n_shapes {
+            let others: Vec<usize> = (0..n_shapes).filter(|&o| o != t).collect();
+            let train = sample(&mut rng, others.len(), n_train).into_iter().map(|i| others[i]).collect();
+            out.push((t, train));
+        }
+    }
+    if let Some(m) = params.max_tests {
+        out.truncate(m);
+    }
+    out
+}
+
+/// A reference ready for evaluation: index, prepared shape, distance fields from the evaluated
+/// ground-truth points, symmetry in vertex space.
+type PreparedReference = (usize, PreparedShape, Mat<f64>, Option<Vec<usize>>);
+
+fn invalid(msg: String) -> Error {
+    EvalError::InvalidInput(msg).into()
+}
+
+/// Runs the protocol (see the module documentation) on `shapes`.
+///
+/// `symmetry`, when given, is a permutation of the labels (`symmetry[k]` mirrors `k`); it
+/// enables the symmetric figures. Needs at least 2 shapes, equal truth-table lengths, truth
+/// entries inside their meshes, and `n_train ≥ 1`.
+pub fn run_protocol(
+    shapes: &[ProtocolShape],
+    symmetry: Option<&[usize]>,
+    params: &ProtocolParams,
+    mut progress: Option<&mut dyn FnMut(ProtocolEvent<'_>)>,
+) -> Result<ProtocolReport, Error> {
+    if shapes.len() < 2 {
+        return Err(invalid(format!("the protocol needs at least 2 shapes, got {}", shapes.len())));
+    }
+    if params.n_train == 0 {
+        return Err(invalid("n_train must be at least 1".into()));
+    }
+    let n_labels = shapes[0].truth.len();
+    if n_labels == 0 {
+        return Err(invalid(format!("shape {} has an empty ground-truth table", shapes[0].name)));
+    }
+    for s in shapes {
+        if s.truth.len() != n_labels {
+            return Err(invalid(format!(
+                "shape {} has {} ground-truth points, {} has {n_labels}",
+                s.name,
+                s.truth.len(),
+                shapes[0].name
+            )));
+        }
+        if let Some(&v) = s.truth.iter().find(|&&v| v >= s.mesh.n_vertices()) {
+            return Err(invalid(format!(
+                "shape {}: ground-truth vertex {v} outside its {} vertices",
+                s.name,
+                s.mesh.n_vertices()
+            )));
+        }
+    }
+    if let Some(sym) = symmetry {
+        if sym.len() != n_labels || sym.iter().any(|&k| k >= n_labels) {
+            return Err(invalid(format!("symmetry map of {} entries for {n_labels} labels", sym.len())));
+        }
+    }
+    let forest_params = params.forest.clone().check()?;
+    let jobs = plan(shapes.len(), params);
+    let cache = match &params.cache_dir {
+        Some(d) => Some(SpectrumCache::new(d.clone())?),
+        None => None,
+    };
+
+    // Spectra of every shape the plan uses.
+    let mut used: Vec<usize> =
+        jobs.iter().flat_map(|(t, tr)| std::iter::once(*t).chain(tr.iter().copied())).collect();
+    used.sort_unstable();
+    used.dedup();
+    let mut spectra: Vec<Option<Arc<Spectrum>>> = vec![None; shapes.len()];
+    let mut spectrum_s = vec![0.0; shapes.len()];
+    for (i, &s) in used.iter().enumerate() {
+        let t0 = Instant::now();
+        let sp = match &cache {
+            Some(c) => c.get_or_compute(&shapes[s].mesh, &params.spectrum)?,
+            None => compute_spectrum(&shapes[s].mesh, &params.spectrum)?,
+        };
+        spectra[s] = Some(Arc::new(sp));
+        spectrum_s[s] = t0.elapsed().as_secs_f64();
+        if let Some(cb) = progress.as_mut() {
+            cb(ProtocolEvent::Spectrum { done: i + 1, total: used.len(), name: &shapes[s].name });
+        }
+    }
+    let spectrum_of =
+        |s: usize| spectra[s].clone().ok_or_else(|| invalid(format!("no spectrum for {}", shapes[s].name)));
+
+    // Evaluated labels: a seeded subset, the same for every test.
+    let mut rng = ChaCha8Rng::seed_from_u64(params.seed ^ 0x9e37_79b9_7f4a_7c15);
+    let mut eval_labels = if params.eval_points >= n_labels {
+        (0..n_labels).collect::<Vec<_>>()
+    } else {
+        sample(&mut rng, n_labels, params.eval_points).into_vec()
+    };
+    eval_labels.sort_unstable();
+
+    // Label vectors (vertex → label) for training.
+    let labels_of = |s: &ProtocolShape| {
+        let mut l = vec![None; s.mesh.n_vertices()];
+        for (k, &v) in s.truth.iter().enumerate() {
+            l[v] = Some(k as u32);
+        }
+        l
+    };
+
+    let mut forests: HashMap<Vec<usize>, (Arc<RandomForest>, Arc<WksKnn>)> = HashMap::new();
+    let mut reference_cache: Option<PreparedReference> = None;
+    let mut tests = Vec::with_capacity(jobs.len());
+    for (done, (t, train)) in jobs.iter().enumerate() {
+        let test_shape = &shapes[*t];
+        let mut timings = TestTimings::default();
+        let stage = |p: &mut Option<&mut dyn FnMut(ProtocolEvent<'_>)>, stage: &'static str| {
+            if let Some(cb) = p.as_mut() {
+                cb(ProtocolEvent::Stage { test: &test_shape.name, stage });
+            }
+        };
+        let reference = train[0];
+        let mut key = train.clone();
+        key.sort_unstable();
+        let forest_reused = forests.contains_key(&key);
+        if !forest_reused {
+            stage(&mut progress, "train");
+            let mut members = Vec::with_capacity(key.len());
+            for &s in &key {
+                members.push(TrainingShape {
+                    name: shapes[s].name.clone(),
+                    spectrum: spectrum_of(s)?,
+                    labels: labels_of(&shapes[s]),
+                });
+            }
+            let set = TrainingSet::new(members, n_labels)?;
+            let t0 = Instant::now();
+            let forest = forest_params.fit(&set)?;
+            timings.train_s = t0.elapsed().as_secs_f64();
+            let t0 = Instant::now();
+            let knn = WksKnn::fit(&set, &WksParams::default(), forest.energy_grid().range, forest.k())?;
+            timings.knn_fit_s = t0.elapsed().as_secs_f64();
+            forests.insert(key.clone(), (Arc::new(forest), Arc::new(knn)));
+        }
+        let (forest, knn) =
+            forests.get(&key).cloned().ok_or_else(|| invalid("internal: trained forest missing".into()))?;
+
+        // Reference: prepared shape, evaluation distance fields and symmetry in vertex space.
+        let t0 = Instant::now();
+        if reference_cache.as_ref().map(|r| r.0) != Some(reference) {
+            let r = &shapes[reference];
+            let prepared =
+                PreparedShape::new(r.mesh.clone(), spectrum_of(reference)?, params.regularizer.heat)?;
+            timings.prepare_s += t0.elapsed().as_secs_f64();
+            stage(&mut progress, "evaluate");
+            let t1 = Instant::now();
+            let solver = HeatMethodSolver::new(&r.mesh, params.eval_heat)?;
+            let sources: Vec<usize> = eval_labels.iter().map(|&k| r.truth[k]).collect();
+            let fields = solver.distances_from_many(&sources)?;
+            timings.eval_fields_s = t1.elapsed().as_secs_f64();
+            let sym_vertices = symmetry.and_then(|sym| {
+                // Vertex-space symmetry needs every reference vertex to carry a label.
+                let n = r.mesh.n_vertices();
+                let mut label_of = vec![usize::MAX; n];
+                for (k, &v) in r.truth.iter().enumerate() {
+                    label_of[v] = k;
+                }
+                label_of
+                    .iter()
+                    .map(|&k| (k != usize::MAX).then(|| r.truth[sym[k]]))
+                    .collect::<Option<Vec<usize>>>()
+            });
+            reference_cache = Some((reference, prepared, fields, sym_vertices));
+        }
+        let (_, ref_prepared, fields, sym_vertices) =
+            reference_cache.as_ref().ok_or_else(|| invalid("internal: reference missing".into()))?;
+        if symmetry.is_some() && sym_vertices.is_none() {
+            return Err(invalid(format!(
+                "a symmetry map needs every vertex of the reference {} to carry a label",
+                shapes[reference].name
+            )));
+        }
+        let t0 = Instant::now();
+        let test_prepared =
+            PreparedShape::new(test_shape.mesh.clone(), spectrum_of(*t)?, params.regularizer.heat)?;
+        timings.prepare_s += t0.elapsed().as_secs_f64();
+
+        stage(&mut progress, "predict");
+        let t0 = Instant::now();
+        let prediction = forest.predict(&test_prepared.spectrum)?;
+        timings.predict_s = t0.elapsed().as_secs_f64();
+        let table = &shapes[reference].truth;
+
+        stage(&mut progress, "regularize");
+        let t0 = Instant::now();
+        let dense = regularize(&test_prepared, ref_prepared, &prediction, Some(table), &params.regularizer)?;
+        timings.regularize_s = t0.elapsed().as_secs_f64();
+
+        stage(&mut progress, "baseline");
+        let k = prediction.mean_support().round().max(1.0) as usize;
+        let t0 = Instant::now();
+        let knn_prediction = knn.predict(&test_prepared.spectrum, k)?;
+        timings.knn_predict_s = t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        let knn_dense =
+            regularize(&test_prepared, ref_prepared, &knn_prediction, Some(table), &params.regularizer)?;
+        timings.knn_regularize_s = t0.elapsed().as_secs_f64();
+
+        let evaluated: Vec<usize> = eval_labels.iter().map(|&k| test_shape.truth[k]).collect();
+        let area = ref_prepared.mesh.surface_area();
+        let measure = |method: Method, map: &[usize]| -> Result<MethodErrors, Error> {
+            let (strict, symmetric) =
+                geodesic_errors(map, &evaluated, fields.as_ref(), sym_vertices.as_deref(), area)?;
+            Ok(MethodErrors { method, strict, symmetric })
+        };
+        let raw = |p: &Prediction| raw_map(p, table);
+        let methods = vec![
+            measure(Method::ForestRaw, &raw(&prediction))?,
+            measure(Method::ForestRegularized, &dense.map)?,
+            measure(Method::WksKnnRaw, &raw(&knn_prediction))?,
+            measure(Method::WksKnnRegularized, &knn_dense.map)?,
+        ];
+        tests.push(TestResult {
+            test: *t,
+            reference,
+            training: key,
+            forest_reused,
+            mean_support: prediction.mean_support(),
+            orientation_score: dense.orientation_score,
+            n_matches: dense.matches.len(),
+            methods,
+            timings,
+        });
+        if let Some(cb) = progress.as_mut() {
+            cb(ProtocolEvent::TestDone { done: done + 1, total: jobs.len(), name: &test_shape.name });
+        }
+    }
+    Ok(ProtocolReport {
+        shape_names: shapes.iter().map(|s| s.name.clone()).collect(),
+        eval_labels,
+        spectrum_s,
+        has_symmetry: symmetry.is_some(),
+        tests,
+    })
+}
+
+/// The maximum-a-posteriori map of a prediction read through `label_to_vertex`; a vertex with
+/// an empty posterior maps to reference vertex `label_to_vertex[0]` (counted as an error like
+/// any other wrong match).
+///
+/// ```
+/// use shapeforest::{eval::protocol::raw_map, forest::Prediction};
+/// // 2 vertices, 3 labels: vertex 0 → label 2, vertex 1 → label 0.
+/// let p = Prediction::from_parts(3, vec![0, 1, 2], vec![2, 0], vec![1.0, 1.0]).unwrap();
+/// assert_eq!(raw_map(&p, &[10, 11, 12]), vec![12, 10]);
+/// ```
+pub fn raw_map(prediction: &Prediction, label_to_vertex: &[usize]) -> Vec<usize> {
+    let fallback = label_to_vertex.first().copied().unwrap_or(0);
+    prediction
+        .map_labels()
+        .iter()
+        .map(|l| l.and_then(|l| label_to_vertex.get(l as usize).copied()).unwrap_or(fallback))
+        .collect()
+}
