@@ -171,32 +171,34 @@ pub fn run(args: MatchArgs) -> Result<()> {
 
     let confidence = mean_confidence(&prediction);
     let tm = &dense.timings;
-    let json = format!(
-        "{{\n  \"mesh\": {:?},\n  \"reference\": {:?},\n  \"model\": {:?},\n  \"mesh_vertices\": {},\n  \"reference_vertices\": {},\n  \"n_matches\": {},\n  \"orientation_score\": {:.6},\n  \"mirror_rejected\": {},\n  \"mean_forest_confidence\": {:.6},\n  \"mean_forest_support\": {:.3},\n  \"timings_s\": {{\"load\": {:.4}, \"spectrum_mesh\": {:.4}, \"spectrum_reference\": {:.4}, \"predict\": {:.4}, \"prepare\": {:.4}, \"regularize\": {:.4}, \"regularize_sampling\": {:.4}, \"regularize_distances\": {:.4}, \"regularize_matching\": {:.4}, \"regularize_fmap\": {:.4}, \"regularize_point_map\": {:.4}, \"write\": {:.4}, \"total\": {:.4}}}\n}}\n",
-        args.mesh.display().to_string(),
-        args.reference.display().to_string(),
-        args.model.display().to_string(),
-        scan.n_vertices(),
-        reference.n_vertices(),
-        dense.matches.len(),
-        dense.orientation_score,
-        dense.mirror_rejected,
-        confidence,
-        prediction.mean_support(),
-        load_s,
-        spectrum_scan_s,
-        spectrum_ref_s,
-        predict_s,
-        prepare_s,
-        regularize_s,
-        tm.sampling_s,
-        tm.distances_s,
-        tm.matching_s,
-        tm.fmap_s,
-        tm.point_map_s,
-        write_s,
-        t_all.elapsed().as_secs_f64()
-    );
+    let report = serde_json::json!({
+        "mesh": args.mesh.display().to_string(),
+        "reference": args.reference.display().to_string(),
+        "model": args.model.display().to_string(),
+        "mesh_vertices": scan.n_vertices(),
+        "reference_vertices": reference.n_vertices(),
+        "n_matches": dense.matches.len(),
+        "orientation_score": dense.orientation_score,
+        "mirror_rejected": dense.mirror_rejected,
+        "mean_forest_confidence": confidence,
+        "mean_forest_support": prediction.mean_support(),
+        "timings_s": {
+            "load": load_s,
+            "spectrum_mesh": spectrum_scan_s,
+            "spectrum_reference": spectrum_ref_s,
+            "predict": predict_s,
+            "prepare": prepare_s,
+            "regularize": regularize_s,
+            "regularize_sampling": tm.sampling_s,
+            "regularize_distances": tm.distances_s,
+            "regularize_matching": tm.matching_s,
+            "regularize_fmap": tm.fmap_s,
+            "regularize_point_map": tm.point_map_s,
+            "write": write_s,
+            "total": t_all.elapsed().as_secs_f64(),
+        },
+    });
+    let json = serde_json::to_string_pretty(&report)? + "\n";
     let report_path = args.out.join(format!("{scan_name}.report.json"));
     std::fs::write(&report_path, json).with_context(|| format!("cannot write {}", report_path.display()))?;
     println!(
