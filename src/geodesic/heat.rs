@@ -4,16 +4,13 @@
 use std::sync::Arc;
 
 use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::linalg::cholesky::llt::factor::LltRegularization;
-use faer::sparse::linalg::cholesky::{
-    factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
-};
-use faer::sparse::linalg::SupernodalThreshold;
+use faer::sparse::linalg::cholesky::{LltRef, SymbolicCholesky};
 use faer::sparse::{SparseColMat, Triplet};
-use faer::{Conj, Mat, MatMut, Par, Side};
+use faer::{Conj, Mat, MatMut, Par};
 use rayon::prelude::*;
 
 use crate::mesh::{cross, dot, norm, sub, Mesh};
+use crate::spectral::cholesky::{numeric_llt, supernodal_symbolic};
 use crate::spectral::{cotan_laplacian, vertex_lumped_mass};
 
 use super::topology::{check_sources, edges_with_face_counts, vertex_components, vertex_on_boundary};
@@ -61,13 +58,9 @@ struct Cholesky {
 
 impl Cholesky {
     fn symbolic(a: &SparseColMat<usize, f64>) -> Result<Arc<SymbolicCholesky<usize>>, GeodesicError> {
-        let params = CholeskySymbolicParams {
-            supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
-            ..Default::default()
-        };
-        factorize_symbolic_cholesky(a.symbolic(), Side::Lower, SymmetricOrdering::Amd, params)
+        supernodal_symbolic(a)
             .map(Arc::new)
-            .map_err(|e| GeodesicError::Factorization { matrix: "symbolic", reason: format!("{e:?}") })
+            .map_err(|reason| GeodesicError::Factorization { matrix: "symbolic", reason })
     }
 
     fn numeric(
@@ -75,22 +68,8 @@ impl Cholesky {
         a: &SparseColMat<usize, f64>,
         matrix: &'static str,
     ) -> Result<Self, GeodesicError> {
-        let par = Par::Seq;
-        let mut values = vec![0.0; symbolic.len_val()];
-        let mut mem =
-            MemBuffer::try_new(symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()))
-                .map_err(|e| GeodesicError::Factorization { matrix, reason: format!("{e:?}") })?;
-        symbolic
-            .factorize_numeric_llt(
-                &mut values,
-                a.as_ref(),
-                Side::Lower,
-                LltRegularization::default(),
-                par,
-                MemStack::new(&mut mem),
-                Default::default(),
-            )
-            .map_err(|e| GeodesicError::Factorization { matrix, reason: format!("{e:?}") })?;
+        let values =
+            numeric_llt(&symbolic, a).map_err(|reason| GeodesicError::Factorization { matrix, reason })?;
         Ok(Self { symbolic, values })
     }
 

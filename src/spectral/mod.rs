@@ -16,6 +16,7 @@
 //! Each eigenvector's sign is fixed so that its entry of largest magnitude is positive.
 
 mod cache;
+pub(crate) mod cholesky;
 mod dense;
 mod kernels;
 mod lanczos;

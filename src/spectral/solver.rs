@@ -36,19 +36,17 @@
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
-use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::linalg::evd::{self_adjoint_evd, self_adjoint_evd_scratch, ComputeEigenvectors};
 use faer::linalg::matmul::matmul;
 use faer::sparse::linalg::cholesky::{
-    factorize_symbolic_cholesky, supernodal::SupernodalLdltRef, CholeskySymbolicParams, LltRef,
-    SymbolicCholesky, SymbolicCholeskyRaw, SymmetricOrdering,
+    supernodal::SupernodalLdltRef, LltRef, SymbolicCholesky, SymbolicCholeskyRaw,
 };
 use faer::sparse::linalg::matmul::sparse_dense_matmul;
-use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Accum, Conj, Mat, MatMut, MatRef, Par, Side};
 use serde::{Deserialize, Serialize};
 
+use super::cholesky::{numeric_llt, supernodal_symbolic};
 use super::lanczos::{BlockLanczos, LanczosFailure};
 use super::{cotan_laplacian, cotan_weights, vertex_lumped_mass, SpectralError, Spectrum};
 use crate::mesh::Mesh;
@@ -595,36 +593,14 @@ impl LaplaceBeltramiSolver {
 
     fn factorize_shifted(&self) -> Result<Factorization, SpectralError> {
         let a = self.shifted(self.params.shift);
-        let symbolic = factorize_symbolic_cholesky(
-            a.symbolic(),
-            Side::Lower,
-            SymmetricOrdering::Amd,
-            CholeskySymbolicParams {
-                supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
-                ..Default::default()
-            },
-        )
-        .map_err(|e| SpectralError::Factorization(format!("symbolic analysis: {e:?}")))?;
-        let mut values = vec![0.0; symbolic.len_val()];
-        let mut mem =
-            MemBuffer::new(symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()));
-        symbolic
-            .factorize_numeric_llt(
-                &mut values,
-                a.as_ref(),
-                Side::Lower,
-                LltRegularization::default(),
-                Par::Seq,
-                MemStack::new(&mut mem),
-                Default::default(),
-            )
-            .map_err(|e| {
-                SpectralError::Factorization(format!(
-                    "L − σM (σ = {}) is not numerically positive definite ({e:?}); \
-                     the mesh may have badly degenerate triangles",
-                    self.params.shift
-                ))
-            })?;
+        let symbolic = supernodal_symbolic(&a).map_err(SpectralError::Factorization)?;
+        let values = numeric_llt(&symbolic, &a).map_err(|e| {
+            SpectralError::Factorization(format!(
+                "L − σM (σ = {}) is not numerically positive definite ({e}); \
+                 the mesh may have badly degenerate triangles",
+                self.params.shift
+            ))
+        })?;
         Ok(Factorization { symbolic, values })
     }
 
