@@ -93,3 +93,45 @@ fn train_without_input_explains_what_to_give() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--class") && err.contains("--synthetic"), "{err}");
 }
+
+#[test]
+fn train_reads_vts_style_label_maps() {
+    // Two poses of a remeshed-style shape: the .vts files list, per label, a vertex (1-based).
+    let dir = tempfile::tempdir().unwrap();
+    let fam = shapeforest::synth::creature_family(
+        &shapeforest::synth::CreatureParams { target_vertices: 1000, seed: 3, ..Default::default() },
+        2,
+    )
+    .unwrap();
+    let n = fam.template.n_vertices();
+    let mut cmd = bin();
+    cmd.args(["train", "--trees", "2", "-k", "30", "--one-based"]);
+    for (i, mesh) in fam.shapes.iter().enumerate() {
+        let m = dir.path().join(format!("s{i}.off"));
+        write_mesh(&m, mesh).unwrap();
+        // Labels are every second vertex, in reverse order: label k ↔ vertex n-1-2k.
+        let rows: String = (0..n / 2).map(|k| format!("{}\n", n - 2 * k)).collect();
+        let vts = dir.path().join(format!("s{i}.vts"));
+        std::fs::write(&vts, rows).unwrap();
+        cmd.arg("--shape").arg(&m).arg("--labels").arg(&vts);
+    }
+    let model = dir.path().join("m.sfm");
+    let out = cmd.arg("--out").arg(&model).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let forest = shapeforest::forest::RandomForest::load(&model).unwrap();
+    assert_eq!(forest.n_labels(), n / 2, "label set = rows of the .vts files");
+
+    // An index beyond the mesh is an error naming the file and line.
+    let bad = dir.path().join("bad.vts");
+    std::fs::write(&bad, format!("1\n{}\n", n + 5)).unwrap();
+    let out = bin()
+        .args(["train", "--one-based", "--shape"])
+        .arg(dir.path().join("s0.off"))
+        .arg("--labels")
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("bad.vts") && err.contains("line 2"), "{err}");
+}

@@ -27,12 +27,17 @@ pub struct TrainArgs {
     /// Explicit training shapes, each followed by its label map via --labels (same order).
     #[arg(long = "shape", value_name = "MESH")]
     pub shapes: Vec<PathBuf>,
-    /// Label maps for --shape: one label per vertex per line (blank, -1 or "none" = unlabelled).
+    /// Label maps for --shape. Per-vertex files hold one label per vertex per line (blank, -1
+    /// or "none" = unlabelled); per-label files (`.vts`, as in remeshed TOSCA/FAUST/SCAPE) hold,
+    /// on line k, the vertex that carries label k.
     #[arg(long = "labels", value_name = "FILE")]
     pub labels: Vec<PathBuf>,
-    /// Label maps are 1-based (like .vts files); a 0 then means unlabelled.
+    /// Indices in the label maps are 1-based (as in .vts files); a 0 then means none.
     #[arg(long)]
     pub one_based: bool,
+    /// How label maps are laid out (`auto`: per-label for `.vts` files, per-vertex otherwise).
+    #[arg(long, value_enum, default_value_t = LabelLayout::Auto)]
+    pub label_layout: LabelLayout,
     /// Size of the label set (default: the largest label + 1 over all maps).
     #[arg(long)]
     pub n_labels: Option<usize>,
@@ -66,6 +71,47 @@ pub struct TrainArgs {
     /// Folder caching spectra between runs (keyed by mesh content and K).
     #[arg(long)]
     pub cache: Option<PathBuf>,
+}
+
+/// Layout of a label-map file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LabelLayout {
+    /// Per-label for files ending in `.vts`, per-vertex otherwise.
+    Auto,
+    /// Line v holds the label of vertex v.
+    PerVertex,
+    /// Line k holds the vertex carrying label k (`.vts`).
+    PerLabel,
+}
+
+/// Reads a per-label (`.vts`-style) map: line k names the vertex carrying label k. Returns the
+/// per-vertex labels of a shape with `n_vertices` vertices. A vertex named on several lines
+/// (remeshed shapes can map several labels to one vertex) keeps the last of them.
+fn read_per_label(path: &std::path::Path, one_based: bool, n_vertices: usize) -> Result<Vec<Option<u32>>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let mut labels = vec![None; n_vertices];
+    for (k, line) in text.lines().enumerate() {
+        let tok = line.split_whitespace().next().unwrap_or("");
+        if tok.is_empty() {
+            continue;
+        }
+        let v: i64 = tok.parse().with_context(|| {
+            format!("{}: line {}: expected a vertex index, found {tok:?}", path.display(), k + 1)
+        })?;
+        let v = if one_based { v - 1 } else { v };
+        if v < 0 {
+            continue; // 0 in a 1-based file, or -1: no vertex for this label
+        }
+        let slot = labels.get_mut(v as usize).with_context(|| {
+            format!(
+                "{}: line {}: vertex {tok} is out of range for a mesh of {n_vertices} vertices",
+                path.display(),
+                k + 1
+            )
+        })?;
+        *slot = Some(k as u32);
+    }
+    Ok(labels)
 }
 
 /// Named meshes with their labels.
@@ -133,9 +179,21 @@ fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
     let mut shapes = Vec::new();
     for (mesh_path, label_path) in args.shapes.iter().zip(&args.labels) {
         let mesh = load_mesh(mesh_path)?;
-        let file = File::open(label_path).with_context(|| format!("cannot open {}", label_path.display()))?;
-        let labels = read_label_map(BufReader::new(file), args.one_based, bound)
-            .with_context(|| format!("in label map {}", label_path.display()))?;
+        let is_vts =
+            label_path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("vts"));
+        let per_label = match args.label_layout {
+            LabelLayout::Auto => is_vts,
+            LabelLayout::PerVertex => false,
+            LabelLayout::PerLabel => true,
+        };
+        let labels = if per_label {
+            read_per_label(label_path, args.one_based, mesh.n_vertices())?
+        } else {
+            let file =
+                File::open(label_path).with_context(|| format!("cannot open {}", label_path.display()))?;
+            read_label_map(BufReader::new(file), args.one_based, bound)
+                .with_context(|| format!("in label map {}", label_path.display()))?
+        };
         shapes.push(Labelled { name: shape_name(mesh_path), mesh, labels });
     }
     let n = match args.n_labels {
