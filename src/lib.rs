@@ -34,6 +34,7 @@ pub mod forest;
 pub mod geodesic;
 pub mod matching;
 pub mod mesh;
+pub mod pipeline;
 pub mod regularizer;
 pub mod spectral;
 pub mod synth;

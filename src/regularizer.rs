@@ -200,16 +200,36 @@ fn pairwise(fields: &Mat<f64>, points: &[usize], scale: f64) -> Vec<f64> {
     d
 }
 
-/// Regularises a forest prediction for `test` against `reference`.
-///
-/// `label_to_vertex` maps forest labels to reference vertices (`None`: label = vertex index).
-pub fn regularize(
+/// The sparse, geodesically consistent matches of a prediction (steps 1–4 of the regulariser),
+/// with the distance fields the dense step reuses.
+pub struct SparseMatches {
+    /// Farthest-point samples on the test shape.
+    pub samples: Vec<usize>,
+    /// Reference vertices that are candidates of some sample.
+    pub ref_points: Vec<usize>,
+    /// Heat-method distances from each sample (`n_test × samples`, mesh units).
+    pub test_fields: Mat<f64>,
+    /// Heat-method distances from each candidate reference point (`n_ref × ref_points`).
+    pub ref_fields: Mat<f64>,
+    /// The game's equilibrium: indices into `samples` and `ref_points`, with weights.
+    pub game: crate::matching::GameMatching,
+    /// The matches in vertex indices.
+    pub matches: Vec<VertexMatch>,
+    /// Orientation agreement of the match set (see [`DenseMap::orientation_score`]).
+    pub orientation_score: f64,
+    /// Whether a mirror-image equilibrium was replaced.
+    pub mirror_rejected: bool,
+    /// Time of sampling, distances and matching.
+    pub timings: RegularizerTimings,
+}
+
+fn check_inputs(
     test: &PreparedShape,
     reference: &PreparedShape,
     prediction: &Prediction,
     label_to_vertex: Option<&[usize]>,
     params: &RegularizerParams,
-) -> Result<DenseMap, Error> {
+) -> Result<(), Error> {
     params.matcher.check()?;
     params.fmap.check()?;
     let n_ref = reference.mesh.n_vertices();
@@ -223,25 +243,49 @@ pub fn regularize(
     }
     match label_to_vertex {
         Some(t) if t.len() != prediction.n_labels() || t.iter().any(|&v| v >= n_ref) => {
-            return Err(fmap::FmapError::SizeMismatch(format!(
+            Err(fmap::FmapError::SizeMismatch(format!(
                 "label table of {} entries for {} labels and a reference of {n_ref} vertices",
                 t.len(),
                 prediction.n_labels()
             ))
-            .into());
+            .into())
         }
-        None if prediction.n_labels() > n_ref => {
-            return Err(fmap::FmapError::SizeMismatch(format!(
-                "{} labels but the reference has only {n_ref} vertices: give a label → vertex table",
-                prediction.n_labels()
-            ))
-            .into());
-        }
-        _ => {}
+        None if prediction.n_labels() > n_ref => Err(fmap::FmapError::SizeMismatch(format!(
+            "{} labels but the reference has only {n_ref} vertices: give a label → vertex table",
+            prediction.n_labels()
+        ))
+        .into()),
+        _ => Ok(()),
     }
+}
+
+/// Regularises a forest prediction for `test` against `reference`: [`sparse_matches`] then
+/// [`dense_map`].
+///
+/// `label_to_vertex` maps forest labels to reference vertices (`None`: label = vertex index).
+pub fn regularize(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    prediction: &Prediction,
+    label_to_vertex: Option<&[usize]>,
+    params: &RegularizerParams,
+) -> Result<DenseMap, Error> {
+    let sparse = sparse_matches(test, reference, prediction, label_to_vertex, params)?;
+    dense_map(test, reference, prediction, label_to_vertex, &sparse, params)
+}
+
+/// Steps 1–4: farthest-point samples, their candidate matches, heat-method distances and the
+/// game-theoretic selection of a consistent, orientation-preserving match set.
+pub fn sparse_matches(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    prediction: &Prediction,
+    label_to_vertex: Option<&[usize]>,
+    params: &RegularizerParams,
+) -> Result<SparseMatches, Error> {
+    check_inputs(test, reference, prediction, label_to_vertex, params)?;
     let posterior = LabelledPosterior { prediction, label_to_vertex };
     let mut timings = RegularizerTimings::default();
-
     // 1–2. Samples and candidates.
     let t0 = Instant::now();
     let n_samples = params.n_samples.min(test.mesh.n_vertices());
@@ -317,6 +361,39 @@ pub fn regularize(
     }
     timings.matching_s = t0.elapsed().as_secs_f64();
 
+    let matches = game
+        .matches
+        .iter()
+        .map(|m| VertexMatch { test: samples[m.test], reference: ref_points[m.reference], weight: m.weight })
+        .collect();
+    Ok(SparseMatches {
+        samples,
+        ref_points,
+        test_fields,
+        ref_fields,
+        game,
+        matches,
+        orientation_score,
+        mirror_rejected,
+        timings,
+    })
+}
+
+/// Steps 5–6: the regularised functional map from the prediction and the sparse matches'
+/// distance maps, and its conversion to point-to-point maps.
+pub fn dense_map(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    prediction: &Prediction,
+    label_to_vertex: Option<&[usize]>,
+    sparse: &SparseMatches,
+    params: &RegularizerParams,
+) -> Result<DenseMap, Error> {
+    check_inputs(test, reference, prediction, label_to_vertex, params)?;
+    let n_ref = reference.mesh.n_vertices();
+    let posterior = LabelledPosterior { prediction, label_to_vertex };
+    let mut timings = sparse.timings;
+    let SparseMatches { test_fields, ref_fields, game, .. } = sparse;
     // 5. Functional maps.
     let t0 = Instant::now();
     let (kt, kr) = (params.fmap.k_test.min(test.spectrum.k()), params.fmap.k_ref.min(reference.spectrum.k()));
@@ -362,11 +439,6 @@ pub fn regularize(
     };
 
     let forest_map = prediction.map_labels().into_iter().map(|l| l.map(|l| posterior.vertex(l))).collect();
-    let matches = game
-        .matches
-        .iter()
-        .map(|m| VertexMatch { test: samples[m.test], reference: ref_points[m.reference], weight: m.weight })
-        .collect();
     Ok(DenseMap {
         map,
         spectral_map,
@@ -375,9 +447,9 @@ pub fn regularize(
         forest_map,
         fmap_predicted,
         fmap: c,
-        matches,
-        orientation_score,
-        mirror_rejected,
+        matches: sparse.matches.clone(),
+        orientation_score: sparse.orientation_score,
+        mirror_rejected: sparse.mirror_rejected,
         timings,
     })
 }

@@ -23,7 +23,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use shapeforest::{
     forest::{Prediction, RandomForest},
-    mesh::{read_mesh, write_ply, Mesh, PlyEncoding},
+    mesh::{coordinate_colors, read_mesh, write_ply, Mesh, PlyEncoding},
     regularizer::{regularize, PreparedShape, RegularizerParams},
     spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
 };
@@ -50,23 +50,6 @@ pub struct MatchArgs {
 
 fn stem(p: &Path) -> String {
     p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").to_string()
-}
-
-/// A smooth colour per vertex from its coordinates normalised to the bounding box.
-pub fn coordinate_colors(mesh: &Mesh) -> Vec<[u8; 3]> {
-    let (lo, hi) = mesh.bounding_box();
-    mesh.vertices
-        .iter()
-        .map(|p| {
-            let mut c = [0u8; 3];
-            for a in 0..3 {
-                let ext = (hi[a] - lo[a]).max(f64::MIN_POSITIVE);
-                let t = ((p[a] - lo[a]) / ext).clamp(0.0, 1.0);
-                c[a] = (30.0 + 225.0 * t).round() as u8;
-            }
-            c
-        })
-        .collect()
 }
 
 /// Mean over vertices of the largest posterior probability.

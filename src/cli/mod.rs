@@ -7,6 +7,7 @@ mod eval;
 mod info;
 mod match_cmd;
 mod predict;
+mod run;
 mod train;
 
 use clap::{Parser, Subcommand};
@@ -38,6 +39,10 @@ pub enum Command {
     Eval(eval::EvalArgs),
     /// Match a mesh to a reference with a trained model; write the map and coloured meshes.
     Match(match_cmd::MatchArgs),
+    /// Run a pipeline file (pipelines/*.toml): batch training, matching, evaluation or a daemon.
+    Run(run::RunArgs),
+    /// The watch-folder daemon: match scans arriving in incoming/, learn from labeled/.
+    Watch(run::WatchArgs),
 }
 
 /// Sets up `tracing` output on stderr.
@@ -63,5 +68,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(args) => bench::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Match(args) => match_cmd::run(args),
+        Command::Run(args) => run::run(args),
+        Command::Watch(args) => run::watch(args),
     }
 }

@@ -5,7 +5,7 @@ use std::{fs::File, io::BufReader, path::PathBuf, sync::Arc, time::Instant};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use shapeforest::{
-    forest::{labels_identity, read_label_map, RandomForest, TrainingSet, TrainingShape},
+    forest::{labels_identity, read_label_map, read_per_label_map, RandomForest, TrainingSet, TrainingShape},
     mesh::Mesh,
     synth::{creature_family, CreatureParams},
 };
@@ -84,34 +84,11 @@ pub enum LabelLayout {
     PerLabel,
 }
 
-/// Reads a per-label (`.vts`-style) map: line k names the vertex carrying label k. Returns the
-/// per-vertex labels of a shape with `n_vertices` vertices. A vertex named on several lines
-/// (remeshed shapes can map several labels to one vertex) keeps the last of them.
+/// Reads a per-label (`.vts`-style) map (see [`read_per_label_map`]).
 fn read_per_label(path: &std::path::Path, one_based: bool, n_vertices: usize) -> Result<Vec<Option<u32>>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let mut labels = vec![None; n_vertices];
-    for (k, line) in text.lines().enumerate() {
-        let tok = line.split_whitespace().next().unwrap_or("");
-        if tok.is_empty() {
-            continue;
-        }
-        let v: i64 = tok.parse().with_context(|| {
-            format!("{}: line {}: expected a vertex index, found {tok:?}", path.display(), k + 1)
-        })?;
-        let v = if one_based { v - 1 } else { v };
-        if v < 0 {
-            continue; // 0 in a 1-based file, or -1: no vertex for this label
-        }
-        let slot = labels.get_mut(v as usize).with_context(|| {
-            format!(
-                "{}: line {}: vertex {tok} is out of range for a mesh of {n_vertices} vertices",
-                path.display(),
-                k + 1
-            )
-        })?;
-        *slot = Some(k as u32);
-    }
-    Ok(labels)
+    let file = std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
+    read_per_label_map(std::io::BufReader::new(file), one_based, n_vertices)
+        .with_context(|| format!("bad label map {}", path.display()))
 }
 
 /// Named meshes with their labels.

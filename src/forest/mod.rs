@@ -64,10 +64,12 @@ mod tree;
 
 pub use io::{fnv1a64, ModelHeader, MODEL_FORMAT_VERSION, MODEL_MAGIC};
 pub use knn::WksKnn;
-pub use model::RandomForest;
+pub use model::{ForestDescriptor, RandomForest};
 pub use params::{RandomForestParams, RandomForestValidParams};
 pub use prediction::{hit_ratio, Prediction};
-pub use training::{labels_identity, read_label_map, RejectedShape, TrainingSet, TrainingShape};
+pub use training::{
+    labels_identity, read_label_map, read_per_label_map, RejectedShape, TrainingSet, TrainingShape,
+};
 
 use thiserror::Error;
 

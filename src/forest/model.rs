@@ -11,6 +11,27 @@ use super::ForestError;
 use crate::descriptor::{first_nonzero_eigenvalue, EnergyGrid, ParametricWks, WksParams};
 use crate::spectral::Spectrum;
 
+/// The per-vertex descriptor a forest splits on ([`RandomForest::descriptor`]): the squared
+/// eigenvector rows of the parametric WKS and the band-pass weights of the forest's energy grid.
+pub struct ForestDescriptor {
+    wks: ParametricWks,
+    table: Vec<f32>,
+    k: usize,
+    grid: EnergyGrid,
+}
+
+impl ForestDescriptor {
+    /// Vertices described.
+    pub fn n_vertices(&self) -> usize {
+        self.wks.n_vertices()
+    }
+
+    /// Bytes held (the `n × K` rows and the weight table).
+    pub fn heap_bytes(&self) -> usize {
+        4 * (self.wks.n_vertices() * self.k + self.table.len())
+    }
+}
+
 /// A random forest mapping vertices to labels from the parametric WKS of their shape.
 ///
 /// Immutable once fitted: an incremental update ([`RandomForestValidParams::fit_with`]) returns a
@@ -72,11 +93,30 @@ impl RandomForest {
     /// least [`Self::k`] eigenpairs): the average of the leaf distributions reached in each tree,
     /// as a sparse left-stochastic matrix (labels × vertices). Parallel over vertices.
     pub fn predict(&self, spectrum: &Spectrum) -> Result<Prediction, ForestError> {
+        self.predict_descriptor(&self.descriptor(spectrum)?)
+    }
+
+    /// The per-vertex descriptor the trees split on, for this forest's energy grid and `K`:
+    /// the first half of [`Self::predict`], for pipelines that run it as its own stage.
+    pub fn descriptor(&self, spectrum: &Spectrum) -> Result<ForestDescriptor, ForestError> {
         if spectrum.k() < self.k {
             return Err(ForestError::SpectrumTooShort { needed: self.k, found: spectrum.k() });
         }
-        let pw = ParametricWks::new(spectrum, self.k)?;
-        let table = pw.weight_table(&self.grid);
+        let wks = ParametricWks::new(spectrum, self.k)?;
+        let table = wks.weight_table(&self.grid);
+        Ok(ForestDescriptor { wks, table, k: self.k, grid: self.grid })
+    }
+
+    /// The forest posterior from a descriptor made by [`Self::descriptor`] (of this forest or of
+    /// one with the same `K` and energy grid).
+    pub fn predict_descriptor(&self, descriptor: &ForestDescriptor) -> Result<Prediction, ForestError> {
+        if descriptor.k != self.k || descriptor.grid != self.grid {
+            return Err(ForestError::IncompatibleModel(format!(
+                "descriptor made for K = {} and another energy grid; the model has K = {}",
+                descriptor.k, self.k
+            )));
+        }
+        let (pw, table) = (&descriptor.wks, &descriptor.table);
         let n = pw.n_vertices();
         let inv_trees = 1.0 / self.trees.len() as f64;
         // Vertices are processed in chunks, tree by tree within a chunk, so the upper levels of
@@ -90,7 +130,7 @@ impl RandomForest {
                 let mut leaves = vec![0u32; (b - a) * n_trees];
                 for (ti, t) in self.trees.iter().enumerate() {
                     for v in a..b {
-                        leaves[(v - a) * n_trees + ti] = t.leaf(&table, self.k, pw.row(v)) as u32;
+                        leaves[(v - a) * n_trees + ti] = t.leaf(table, self.k, pw.row(v)) as u32;
                     }
                 }
                 let mut lens = Vec::with_capacity(b - a);

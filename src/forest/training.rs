@@ -215,3 +215,42 @@ pub fn read_label_map<R: BufRead>(
     }
     Ok(out)
 }
+
+/// Reads a per-label map (the `.vts` convention of remeshed TOSCA: line `k` names the vertex that
+/// carries label `k`) and returns the per-vertex labels of a shape with `n_vertices` vertices.
+/// `one_based` says vertex indices count from 1. A line that is blank, or names vertex `-1` (or
+/// `0` in a one-based file), leaves its label without a vertex. A vertex named on several lines
+/// (remeshed shapes can map several labels to one vertex) keeps the last of them.
+///
+/// ```
+/// use shapeforest::forest::read_per_label_map;
+/// // labels 0, 1, 2 sit on vertices 3, 1, 2 (1-based)
+/// let l = read_per_label_map("3\n1\n2\n".as_bytes(), true, 4).unwrap();
+/// assert_eq!(l, vec![Some(1), Some(2), Some(0), None]);
+/// assert!(read_per_label_map("5\n".as_bytes(), true, 4).is_err());
+/// ```
+pub fn read_per_label_map<R: BufRead>(
+    reader: R,
+    one_based: bool,
+    n_vertices: usize,
+) -> Result<Vec<Option<u32>>, ForestError> {
+    let mut labels = vec![None; n_vertices];
+    for (k, line) in reader.lines().enumerate() {
+        let bad = |reason: String| ForestError::LabelMap { line: k + 1, reason };
+        let line = line.map_err(|e| bad(format!("cannot read: {e}")))?;
+        let tok = line.split_whitespace().next().unwrap_or("");
+        if tok.is_empty() {
+            continue;
+        }
+        let v: i64 = tok.parse().map_err(|_| bad(format!("expected a vertex index, found `{tok}`")))?;
+        let v = if one_based { v - 1 } else { v };
+        if v < 0 {
+            continue;
+        }
+        let slot = labels.get_mut(v as usize).ok_or_else(|| {
+            bad(format!("vertex {tok} is out of range for a mesh of {n_vertices} vertices"))
+        })?;
+        *slot = Some(k as u32);
+    }
+    Ok(labels)
+}

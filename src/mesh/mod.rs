@@ -215,3 +215,30 @@ impl Fnv64 {
         self.0
     }
 }
+
+/// A smooth colour per vertex from its coordinates normalised to the bounding box (red = x,
+/// green = y, blue = z, each in 30..=255): transferred through a correspondence, matching parts
+/// of two shapes share colours.
+///
+/// ```
+/// use shapeforest::mesh::{coordinate_colors, Mesh};
+/// let m = Mesh::new(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 1.0]], vec![[0, 1, 2]]).unwrap();
+/// let c = coordinate_colors(&m);
+/// assert_eq!(c[0], [30, 30, 30]);
+/// assert_eq!(c[1], [255, 30, 30]);
+/// ```
+pub fn coordinate_colors(mesh: &Mesh) -> Vec<[u8; 3]> {
+    let (lo, hi) = mesh.bounding_box();
+    mesh.vertices
+        .iter()
+        .map(|p| {
+            let mut c = [0u8; 3];
+            for a in 0..3 {
+                let ext = (hi[a] - lo[a]).max(f64::MIN_POSITIVE);
+                let t = ((p[a] - lo[a]) / ext).clamp(0.0, 1.0);
+                c[a] = (30.0 + 225.0 * t).round() as u8;
+            }
+            c
+        })
+        .collect()
+}

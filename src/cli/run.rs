@@ -1,0 +1,108 @@
+//! `shapeforest run PIPELINE.toml` and `shapeforest watch`: run a pipeline file on a data
+//! folder until its inputs are done (batch pipelines) or until Ctrl-C / SIGTERM (the daemon).
+
+use std::path::PathBuf;
+
+use anyhow::{anyhow, Result};
+use clap::Args;
+use shapeforest::pipeline::{bootstrap_synthetic, daemon::run_spec, PipelineSpec, RunOptions};
+
+/// The daemon's pipeline when `pipelines/watch.toml` is not at hand (e.g. an installed binary).
+const DEFAULT_WATCH: &str = include_str!("../../pipelines/watch.toml");
+
+/// Arguments of `shapeforest run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Pipeline file, e.g. pipelines/match.toml.
+    pub pipeline: PathBuf,
+    /// Data folder (overrides the file's `settings.data_dir`).
+    #[arg(long)]
+    pub data_dir: Option<PathBuf>,
+    /// Stop after this many seconds (a daemon otherwise runs until Ctrl-C / SIGTERM).
+    #[arg(long)]
+    pub stop_after: Option<f64>,
+}
+
+/// Arguments of `shapeforest watch`.
+#[derive(Debug, Args)]
+pub struct WatchArgs {
+    /// Pipeline file (default: pipelines/watch.toml, or the built-in copy of it).
+    #[arg(long)]
+    pub pipeline: Option<PathBuf>,
+    /// Data folder with incoming/, labeled/, matched/, rejected/, models/.
+    #[arg(long, default_value = "shapeforest-data")]
+    pub data_dir: PathBuf,
+    /// With no model and nothing to learn from, seed labeled/ with 6 shapes of the built-in
+    /// synthetic class and incoming/ with 2 further poses to match.
+    #[arg(long)]
+    pub bootstrap_synthetic: bool,
+    /// Vertices per synthetic shape for --bootstrap-synthetic.
+    #[arg(long, default_value_t = 5000)]
+    pub vertices: usize,
+    /// Stop after this many seconds (otherwise: until Ctrl-C / SIGTERM).
+    #[arg(long)]
+    pub stop_after: Option<f64>,
+}
+
+fn options(stop_after: Option<f64>) -> RunOptions {
+    RunOptions {
+        handle_signals: true,
+        stop_after: stop_after.map(|s| std::time::Duration::from_secs_f64(s.max(0.0))),
+    }
+}
+
+/// Runs `shapeforest run`.
+pub fn run(args: RunArgs) -> Result<()> {
+    let spec = PipelineSpec::from_file(&args.pipeline)?;
+    eprintln!("shapeforest: running pipeline `{}` ({})", spec.name, args.pipeline.display());
+    let report = run_spec(&spec, args.data_dir.as_deref(), options(args.stop_after), None, |_| Ok(()))
+        .map_err(|e| anyhow!(e))?;
+    println!("{}", report.table());
+    println!(
+        "pipeline `{}` finished in {:.1} s{}; model version {}",
+        spec.name,
+        report.elapsed_s,
+        if report.interrupted { " (shut down)" } else { "" },
+        report.model_version
+    );
+    Ok(())
+}
+
+/// Runs `shapeforest watch`.
+pub fn watch(args: WatchArgs) -> Result<()> {
+    let spec = match &args.pipeline {
+        Some(p) => PipelineSpec::from_file(p)?,
+        None => {
+            let default = PathBuf::from("pipelines/watch.toml");
+            if default.is_file() {
+                PipelineSpec::from_file(&default)?
+            } else {
+                PipelineSpec::from_toml(DEFAULT_WATCH, "built-in watch.toml")?
+            }
+        }
+    };
+    if !spec.is_daemon() {
+        return Err(anyhow!("pipeline `{}` watches no folder; use `shapeforest run` for it", spec.name));
+    }
+    let data_dir = args.data_dir.clone();
+    eprintln!(
+        "shapeforest: watching {} (drop scans into incoming/, labelled shapes into labeled/; Ctrl-C to stop)",
+        data_dir.display()
+    );
+    let report = run_spec(&spec, Some(&data_dir), options(args.stop_after), None, |setup| {
+        let nothing = setup.live.current().is_none()
+            && std::fs::read_dir(setup.data.labeled()).map(|d| d.count()).unwrap_or(0) == 0
+            && std::fs::read_dir(setup.data.training()).map(|d| d.count()).unwrap_or(0) == 0;
+        if args.bootstrap_synthetic && nothing {
+            let n = bootstrap_synthetic(&setup.data, args.vertices, 6, 2, 1)?;
+            eprintln!(
+                "shapeforest: bootstrap: 6 labelled synthetic creatures ({n} vertices) in labeled/, 2 scans in incoming/"
+            );
+        }
+        Ok(())
+    })
+    .map_err(|e| anyhow!(e))?;
+    println!("{}", report.table());
+    println!("stopped after {:.1} s; model version {}", report.elapsed_s, report.model_version);
+    Ok(())
+}

@@ -1,0 +1,449 @@
+//! Actors: the [`Source`], [`Stage`] and [`Sink`] traits a pipeline is made of, the loops that
+//! run them over bounded flume channels, per-stage metrics, and the shutdown signal.
+//!
+//! Every actor is a tokio task that owns its state. The work of one job (`process`, `consume`)
+//! runs on tokio's blocking pool (`spawn_blocking`), where it may use rayon; executor threads
+//! only move envelopes. A panic while processing a job becomes that job's failure: the actor
+//! keeps its state and goes on with the next job.
+
+use std::{
+    panic::AssertUnwindSafe,
+    sync::{
+        atomic::{AtomicBool, AtomicU64, Ordering},
+        Arc, Mutex,
+    },
+    time::{Duration, Instant},
+};
+
+use tokio::sync::Notify;
+
+use super::message::{Envelope, Failure, FailureKind, Job, JobId};
+
+/// A shared shutdown flag: once triggered, sources stop taking new inputs and stages pass the
+/// jobs that reach them on as [`FailureKind::Interrupted`] (their inputs stay claimed and are
+/// picked up again at the next start).
+#[derive(Clone, Default)]
+pub struct Shutdown {
+    inner: Arc<(AtomicBool, Notify)>,
+}
+
+impl Shutdown {
+    /// A flag that is not triggered.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Triggers the shutdown (idempotent).
+    pub fn trigger(&self) {
+        self.inner.0.store(true, Ordering::SeqCst);
+        self.inner.1.notify_waiters();
+    }
+
+    /// Whether the shutdown was triggered.
+    pub fn is_triggered(&self) -> bool {
+        self.inner.0.load(Ordering::SeqCst)
+    }
+
+    /// Sleeps `d` or until the shutdown is triggered; returns whether it was triggered.
+    pub fn sleep(&self, d: Duration) -> bool {
+        let step = Duration::from_millis(25);
+        let end = Instant::now() + d;
+        while Instant::now() < end {
+            if self.is_triggered() {
+                return true;
+            }
+            std::thread::sleep(step.min(end.saturating_duration_since(Instant::now())));
+        }
+        self.is_triggered()
+    }
+
+    /// Waits (asynchronously) for the trigger.
+    pub async fn triggered(&self) {
+        loop {
+            let notified = self.inner.1.notified();
+            if self.is_triggered() {
+                return;
+            }
+            notified.await;
+        }
+    }
+}
+
+/// Counters of one actor, updated as it runs.
+#[derive(Debug, Default)]
+pub struct StageMetrics {
+    name: String,
+    jobs: AtomicU64,
+    failed: AtomicU64,
+    passed_on: AtomicU64,
+    busy_ns: AtomicU64,
+    max_ns: AtomicU64,
+}
+
+impl StageMetrics {
+    /// Metrics for the actor `name`.
+    pub fn new(name: impl Into<String>) -> Self {
+        Self { name: name.into(), ..Default::default() }
+    }
+
+    fn record(&self, elapsed: Duration, ok: bool) {
+        let ns = elapsed.as_nanos() as u64;
+        self.jobs.fetch_add(1, Ordering::Relaxed);
+        if !ok {
+            self.failed.fetch_add(1, Ordering::Relaxed);
+        }
+        self.busy_ns.fetch_add(ns, Ordering::Relaxed);
+        self.max_ns.fetch_max(ns, Ordering::Relaxed);
+    }
+
+    /// A snapshot.
+    pub fn summary(&self) -> StageSummary {
+        let jobs = self.jobs.load(Ordering::Relaxed);
+        let busy = self.busy_ns.load(Ordering::Relaxed) as f64 * 1e-9;
+        StageSummary {
+            name: self.name.clone(),
+            jobs,
+            failed: self.failed.load(Ordering::Relaxed),
+            passed_on: self.passed_on.load(Ordering::Relaxed),
+            busy_s: busy,
+            mean_s: if jobs > 0 { busy / jobs as f64 } else { 0.0 },
+            max_s: self.max_ns.load(Ordering::Relaxed) as f64 * 1e-9,
+        }
+    }
+}
+
+/// What one actor did.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct StageSummary {
+    /// Actor name.
+    pub name: String,
+    /// Jobs processed (sources: emitted).
+    pub jobs: u64,
+    /// Of which failed here.
+    pub failed: u64,
+    /// Failures of earlier stages passed on unprocessed.
+    pub passed_on: u64,
+    /// Seconds spent working.
+    pub busy_s: f64,
+    /// Mean seconds per job.
+    pub mean_s: f64,
+    /// Longest job, seconds.
+    pub max_s: f64,
+}
+
+/// Everything the actors of one pipeline share: job numbers, the shutdown flag and metrics.
+#[derive(Clone)]
+pub struct PipelineContext {
+    /// The shutdown flag.
+    pub shutdown: Shutdown,
+    next_job: Arc<AtomicU64>,
+    metrics: Arc<Mutex<Vec<Arc<StageMetrics>>>>,
+}
+
+impl Default for PipelineContext {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl PipelineContext {
+    /// A fresh context.
+    pub fn new() -> Self {
+        Self::with_shutdown(Shutdown::new())
+    }
+
+    /// A fresh context whose shutdown flag is `shutdown` (held by the caller, to stop the
+    /// pipeline from outside).
+    pub fn with_shutdown(shutdown: Shutdown) -> Self {
+        Self { shutdown, next_job: Arc::new(AtomicU64::new(1)), metrics: Arc::new(Mutex::new(Vec::new())) }
+    }
+
+    /// A new job number.
+    pub fn next_job_id(&self) -> JobId {
+        self.next_job.fetch_add(1, Ordering::Relaxed)
+    }
+
+    /// Registers metrics for an actor.
+    pub fn metrics_for(&self, name: &str) -> Arc<StageMetrics> {
+        let m = Arc::new(StageMetrics::new(name));
+        if let Ok(mut all) = self.metrics.lock() {
+            all.push(m.clone());
+        }
+        m
+    }
+
+    /// Snapshots of every actor's metrics, in creation order.
+    pub fn summaries(&self) -> Vec<StageSummary> {
+        match self.metrics.lock() {
+            Ok(all) => all.iter().map(|m| m.summary()).collect(),
+            Err(_) => Vec::new(),
+        }
+    }
+}
+
+/// Where a source puts what it finds. Sending blocks while the channel is full (back-pressure)
+/// and gives up when the pipeline shuts down.
+pub struct Emitter<T> {
+    tx: flume::Sender<Envelope<T>>,
+    ctx: PipelineContext,
+    metrics: Arc<StageMetrics>,
+}
+
+impl<T> Emitter<T> {
+    /// A new job number.
+    pub fn next_job_id(&self) -> JobId {
+        self.ctx.next_job_id()
+    }
+
+    /// The shutdown flag.
+    pub fn shutdown(&self) -> &Shutdown {
+        &self.ctx.shutdown
+    }
+
+    /// Sends one job downstream, waiting while the channel is full. Returns `false` when the
+    /// job was not sent because the pipeline is shutting down or nothing consumes the output.
+    pub fn emit(&self, envelope: Envelope<T>) -> bool {
+        let ok = envelope.body.is_ok();
+        let mut env = envelope;
+        loop {
+            match self.tx.send_timeout(env, Duration::from_millis(100)) {
+                Ok(()) => {
+                    self.metrics.record(Duration::ZERO, ok);
+                    return true;
+                }
+                Err(flume::SendTimeoutError::Timeout(back)) => {
+                    if self.ctx.shutdown.is_triggered() {
+                        return false;
+                    }
+                    env = back;
+                }
+                Err(flume::SendTimeoutError::Disconnected(_)) => return false,
+            }
+        }
+    }
+}
+
+/// A source of jobs (a folder, a watched folder, a generator). It runs on a blocking thread
+/// until it has nothing more to give or the pipeline shuts down.
+pub trait Source: Send + 'static {
+    /// What it emits.
+    type Out: Send + 'static;
+    /// Runs the source. An error ends it (and is logged); jobs already emitted go on.
+    fn run(&mut self, out: &Emitter<Self::Out>) -> Result<(), String>;
+}
+
+/// A processing stage: one input, one output per job.
+pub trait Stage: Send + 'static {
+    /// Input payload.
+    type In: Send + 'static;
+    /// Output payload.
+    type Out: Send + 'static;
+    /// Processes one job's payload; `job` may be annotated. An error is the job's failure.
+    fn process(&mut self, job: &mut Job, input: Self::In) -> Result<Self::Out, Failure>;
+}
+
+/// The end of a chain: consumes every job, successful or failed.
+pub trait Sink: Send + 'static {
+    /// Input payload.
+    type In: Send + 'static;
+    /// Called once before the first job (on a blocking thread).
+    fn start(&mut self) -> Result<(), String> {
+        Ok(())
+    }
+    /// Consumes one job. An error is logged and counted; the sink goes on.
+    fn consume(&mut self, job: Job, body: Result<Self::In, Failure>) -> Result<(), String>;
+    /// Called when nothing is waiting: after a job that left the input channel empty, and every
+    /// [`Sink::tick`] while no job arrives (a trainer batches what has arrived and updates its
+    /// model here).
+    fn idle(&mut self) -> Result<(), String> {
+        Ok(())
+    }
+    /// How often [`Sink::idle`] is called while no job arrives (`None`: never).
+    fn tick(&self) -> Option<Duration> {
+        None
+    }
+    /// Called once when every input has arrived (the upstream closed).
+    fn finish(&mut self) -> Result<(), String> {
+        Ok(())
+    }
+}
+
+fn panic_message(p: Box<dyn std::any::Any + Send>) -> String {
+    if let Some(s) = p.downcast_ref::<&str>() {
+        s.to_string()
+    } else if let Some(s) = p.downcast_ref::<String>() {
+        s.clone()
+    } else {
+        "unknown panic".to_string()
+    }
+}
+
+/// Runs a source to completion on the blocking pool.
+pub(crate) async fn run_source<S: Source>(
+    mut source: S,
+    name: String,
+    tx: flume::Sender<Envelope<S::Out>>,
+    ctx: PipelineContext,
+    metrics: Arc<StageMetrics>,
+) {
+    let emitter = Emitter { tx, ctx, metrics };
+    let n = name.clone();
+    let r = tokio::task::spawn_blocking(move || {
+        std::panic::catch_unwind(AssertUnwindSafe(|| source.run(&emitter)))
+            .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))))
+    })
+    .await;
+    match r {
+        Ok(Ok(())) => tracing::debug!(source = %n, "source finished"),
+        Ok(Err(e)) => tracing::error!(source = %n, "source stopped: {e}"),
+        Err(e) => tracing::error!(source = %n, "source task failed: {e}"),
+    }
+}
+
+/// Runs a stage until its input closes.
+pub(crate) async fn run_stage<S: Stage>(
+    stage: S,
+    name: String,
+    rx: flume::Receiver<Envelope<S::In>>,
+    tx: flume::Sender<Envelope<S::Out>>,
+    ctx: PipelineContext,
+    metrics: Arc<StageMetrics>,
+) {
+    let mut stage = Some(stage);
+    while let Ok(Envelope { job, body }) = rx.recv_async().await {
+        let out = match body {
+            Err(f) => {
+                metrics.passed_on.fetch_add(1, Ordering::Relaxed);
+                Envelope { job, body: Err(f) }
+            }
+            Ok(_) if ctx.shutdown.is_triggered() => {
+                metrics.passed_on.fetch_add(1, Ordering::Relaxed);
+                Envelope { job, body: Err(Failure::interrupted(&name)) }
+            }
+            Ok(input) => {
+                let Some(mut s) = stage.take() else { break };
+                let n = name.clone();
+                let mut job = job;
+                let t0 = Instant::now();
+                let joined = tokio::task::spawn_blocking(move || {
+                    let r = std::panic::catch_unwind(AssertUnwindSafe(|| s.process(&mut job, input)))
+                        .unwrap_or_else(|p| {
+                            Err(Failure {
+                                stage: n.clone(),
+                                kind: FailureKind::Internal,
+                                message: format!("panic: {}", panic_message(p)),
+                            })
+                        });
+                    (s, job, r)
+                })
+                .await;
+                let Ok((s, mut job, r)) = joined else {
+                    tracing::error!(stage = %name, "stage task was cancelled");
+                    break;
+                };
+                stage = Some(s);
+                let dt = t0.elapsed();
+                metrics.record(dt, r.is_ok());
+                job.stage_seconds.push((name.clone(), dt.as_secs_f64()));
+                match &r {
+                    Ok(_) => {
+                        tracing::debug!(stage = %name, job = job.id, shape = %job.name, "done in {:.3} s", dt.as_secs_f64())
+                    }
+                    Err(f) => {
+                        tracing::warn!(stage = %name, job = job.id, shape = %job.name, "failed: {}", f.message)
+                    }
+                }
+                Envelope { job, body: r }
+            }
+        };
+        if tx.send_async(out).await.is_err() {
+            tracing::error!(stage = %name, "downstream closed; stopping");
+            break;
+        }
+    }
+}
+
+/// Runs a sink until its input closes.
+pub(crate) async fn run_sink<S: Sink>(
+    sink: S,
+    name: String,
+    rx: flume::Receiver<Envelope<S::In>>,
+    metrics: Arc<StageMetrics>,
+) {
+    let n = name.clone();
+    let started = tokio::task::spawn_blocking(move || {
+        let mut sink = sink;
+        let r = std::panic::catch_unwind(AssertUnwindSafe(|| sink.start()))
+            .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))));
+        (sink, r)
+    })
+    .await;
+    let Ok((s, r)) = started else { return };
+    if let Err(e) = r {
+        tracing::error!(sink = %n, "start failed: {e}");
+    }
+    let tick = s.tick();
+    let mut sink = Some(s);
+    loop {
+        let received = match tick {
+            None => rx.recv_async().await,
+            Some(t) => match tokio::time::timeout(t, rx.recv_async()).await {
+                Ok(r) => r,
+                Err(_) => {
+                    // Nothing arrived for a while: let the sink act on what it holds.
+                    let Some(mut s) = sink.take() else { break };
+                    let joined = tokio::task::spawn_blocking(move || {
+                        let r = std::panic::catch_unwind(AssertUnwindSafe(|| s.idle()))
+                            .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))));
+                        (s, r)
+                    })
+                    .await;
+                    let Ok((s, r)) = joined else { break };
+                    sink = Some(s);
+                    if let Err(e) = r {
+                        tracing::error!(sink = %name, "{e}");
+                    }
+                    continue;
+                }
+            },
+        };
+        let Ok(Envelope { job, body }) = received else { break };
+        let Some(mut s) = sink.take() else { break };
+        let t0 = Instant::now();
+        let waiting = rx.clone();
+        let n = name.clone();
+        let joined = tokio::task::spawn_blocking(move || {
+            let r = std::panic::catch_unwind(AssertUnwindSafe(|| {
+                let r = s.consume(job, body);
+                // Let a batching sink act once nothing else is waiting.
+                if waiting.is_empty() {
+                    r.and_then(|_| s.idle())
+                } else {
+                    r
+                }
+            }))
+            .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))));
+            (s, r)
+        })
+        .await;
+        let Ok((s, r)) = joined else {
+            tracing::error!(sink = %n, "sink task was cancelled");
+            break;
+        };
+        sink = Some(s);
+        metrics.record(t0.elapsed(), r.is_ok());
+        if let Err(e) = r {
+            tracing::error!(sink = %n, "{e}");
+        }
+    }
+    if let Some(mut s) = sink {
+        let r = tokio::task::spawn_blocking(move || {
+            std::panic::catch_unwind(AssertUnwindSafe(|| s.finish()))
+                .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))))
+        })
+        .await;
+        if let Ok(Err(e)) = r {
+            tracing::error!(sink = %name, "finish failed: {e}");
+        }
+    }
+}

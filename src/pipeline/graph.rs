@@ -1,0 +1,231 @@
+//! Composing actors into a running pipeline, in code ([`Pipeline`]: typed [`Port`]s make a
+//! mis-wired graph a compile error) or from a `pipelines/*.toml` file (see [`super::config`]).
+
+use std::{
+    sync::Arc,
+    time::{Duration, Instant},
+};
+
+use super::{
+    actor::{run_sink, run_source, run_stage, PipelineContext, Sink, Source, Stage, StageSummary},
+    message::Envelope,
+    model::LiveModel,
+    store::DataDir,
+};
+
+/// The output of an actor, to be consumed by exactly one other (it is not `Clone`).
+pub struct Port<T> {
+    rx: flume::Receiver<Envelope<T>>,
+    /// Name of the producing actor.
+    pub producer: String,
+}
+
+type Spawn = Box<dyn FnOnce() -> tokio::task::JoinHandle<()> + Send>;
+
+/// A pipeline under construction: actors connected by bounded channels.
+///
+/// ```no_run
+/// use std::sync::Arc;
+/// use shapeforest::pipeline::{stages::*, DataDir, LiveModel, Pipeline, RunOptions};
+///
+/// let data = DataDir::new("shapeforest-data");
+/// let live = Arc::new(LiveModel::new());
+/// let mut p = Pipeline::new(data.clone(), live.clone());
+/// let shapes = p.source("train-shapes", SyntheticSource::new(SyntheticConfig { vertices: 3000, seed: 1, first: 0, count: 6 }));
+/// let spectra = p.stage("spectral", shapes, SpectralStage::new(&SpectralConfig::default(), None).unwrap());
+/// let trainer = TrainerSink::new(data, TrainerConfig { mode: TrainMode::Once, ..Default::default() }, Default::default(), live).unwrap();
+/// p.sink("trainer", spectra, trainer);
+/// let report = p.run(RunOptions::default()).unwrap();
+/// println!("{}", report.table());
+/// ```
+pub struct Pipeline {
+    ctx: PipelineContext,
+    data: DataDir,
+    live: Arc<LiveModel>,
+    capacity: usize,
+    spawns: Vec<Spawn>,
+}
+
+/// How [`Pipeline::run`] behaves.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RunOptions {
+    /// Shut down gracefully on Ctrl-C or SIGTERM (a second signal exits at once). Default false
+    /// (the command-line tool sets it).
+    pub handle_signals: bool,
+    /// Shut down after this long (for benchmarks and tests).
+    pub stop_after: Option<Duration>,
+}
+
+/// What a finished pipeline did.
+#[derive(Clone, Debug)]
+pub struct PipelineReport {
+    /// Per-actor metrics, in creation order.
+    pub stages: Vec<StageSummary>,
+    /// Wall-clock seconds.
+    pub elapsed_s: f64,
+    /// Whether it stopped on a shutdown signal (rather than running out of input).
+    pub interrupted: bool,
+    /// The live model's version at the end (0: none).
+    pub model_version: u64,
+}
+
+impl PipelineReport {
+    /// The metrics as a table, one line per actor.
+    pub fn table(&self) -> String {
+        use std::fmt::Write as _;
+        let mut t = format!(
+            "{:<18} {:>6} {:>7} {:>8} {:>9} {:>9}\n",
+            "actor", "jobs", "failed", "skipped", "mean s", "max s"
+        );
+        for s in &self.stages {
+            let _ = writeln!(
+                t,
+                "{:<18} {:>6} {:>7} {:>8} {:>9.3} {:>9.3}",
+                s.name, s.jobs, s.failed, s.passed_on, s.mean_s, s.max_s
+            );
+        }
+        t
+    }
+}
+
+impl Pipeline {
+    /// An empty pipeline over a data folder and a live model.
+    pub fn new(data: DataDir, live: Arc<LiveModel>) -> Self {
+        Self::with_context(data, live, PipelineContext::new())
+    }
+
+    /// An empty pipeline with a given context (e.g. one whose shutdown flag the caller holds).
+    pub fn with_context(data: DataDir, live: Arc<LiveModel>, ctx: PipelineContext) -> Self {
+        Self { ctx, data, live, capacity: 2, spawns: Vec::new() }
+    }
+
+    /// Capacity of every channel created after this call (default 2: a burst of inputs waits
+    /// on disk, not in memory).
+    pub fn with_capacity(mut self, capacity: usize) -> Self {
+        self.capacity = capacity.max(1);
+        self
+    }
+
+    /// The shared context (shutdown flag, metrics).
+    pub fn context(&self) -> &PipelineContext {
+        &self.ctx
+    }
+
+    /// The data folder.
+    pub fn data(&self) -> &DataDir {
+        &self.data
+    }
+
+    /// The live model.
+    pub fn live_model(&self) -> &Arc<LiveModel> {
+        &self.live
+    }
+
+    /// Adds a source.
+    pub fn source<S: Source>(&mut self, name: &str, source: S) -> Port<S::Out> {
+        let (tx, rx) = flume::bounded(self.capacity);
+        let (ctx, n) = (self.ctx.clone(), name.to_string());
+        let metrics = self.ctx.metrics_for(name);
+        self.spawns.push(Box::new(move || tokio::spawn(run_source(source, n, tx, ctx, metrics))));
+        Port { rx, producer: name.to_string() }
+    }
+
+    /// Adds a stage reading `input`.
+    pub fn stage<S: Stage>(&mut self, name: &str, input: Port<S::In>, stage: S) -> Port<S::Out> {
+        let (tx, rx) = flume::bounded(self.capacity);
+        let (ctx, n) = (self.ctx.clone(), name.to_string());
+        let metrics = self.ctx.metrics_for(name);
+        let in_rx = input.rx;
+        self.spawns.push(Box::new(move || tokio::spawn(run_stage(stage, n, in_rx, tx, ctx, metrics))));
+        Port { rx, producer: name.to_string() }
+    }
+
+    /// Adds a sink reading `input`.
+    pub fn sink<S: Sink>(&mut self, name: &str, input: Port<S::In>, sink: S) {
+        let n = name.to_string();
+        let metrics = self.ctx.metrics_for(name);
+        let in_rx = input.rx;
+        self.spawns.push(Box::new(move || tokio::spawn(run_sink(sink, n, in_rx, metrics))));
+    }
+
+    /// Runs every actor until the sources are exhausted and every job has reached its sink,
+    /// or until shutdown (signal, [`RunOptions::stop_after`], or the context's flag).
+    pub fn run(self, options: RunOptions) -> std::io::Result<PipelineReport> {
+        let t0 = Instant::now();
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .thread_name("shapeforest-actor")
+            .enable_all()
+            .build()?;
+        let ctx = self.ctx.clone();
+        let live = self.live.clone();
+        let run_ctx = self.ctx.clone();
+        rt.block_on(async move {
+            let ctx = run_ctx;
+            let handles: Vec<_> = self.spawns.into_iter().map(|s| s()).collect();
+            let watcher = {
+                let shutdown = ctx.shutdown.clone();
+                tokio::spawn(async move {
+                    let deadline = async {
+                        match options.stop_after {
+                            Some(d) => tokio::time::sleep(d).await,
+                            None => std::future::pending::<()>().await,
+                        }
+                    };
+                    tokio::select! {
+                        _ = shutdown_signal(options.handle_signals) => {
+                            eprintln!("shapeforest: shutting down — finishing jobs in flight (signal again to exit at once)");
+                            shutdown.trigger();
+                            if options.handle_signals {
+                                tokio::spawn(async {
+                                    shutdown_signal(true).await;
+                                    eprintln!("shapeforest: exiting now; claimed inputs are taken up at the next start");
+                                    std::process::exit(130);
+                                });
+                            }
+                        }
+                        _ = deadline => shutdown.trigger(),
+                        _ = shutdown.triggered() => {}
+                    }
+                })
+            };
+            for h in handles {
+                let _ = h.await;
+            }
+            watcher.abort();
+        });
+        rt.shutdown_timeout(Duration::from_secs(1));
+        Ok(PipelineReport {
+            stages: ctx.summaries(),
+            elapsed_s: t0.elapsed().as_secs_f64(),
+            interrupted: ctx.shutdown.is_triggered(),
+            model_version: live.version(),
+        })
+    }
+}
+
+/// Resolves on Ctrl-C or SIGTERM when `enabled`, never otherwise.
+async fn shutdown_signal(enabled: bool) {
+    if !enabled {
+        return std::future::pending().await;
+    }
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+    }
+}

@@ -1,0 +1,539 @@
+//! `trainer`: labelled shapes → a new model version, swapped into the live model.
+//!
+//! Accepted shapes are kept in the data folder's `training/` (a claimed input is moved there as
+//! it arrived; a generated or unclaimed one is written as OFF with a `.labels` map). Each update
+//! grows the forest on the enlarged set ([`crate::forest::RandomForestValidParams::fit_with`]:
+//! `trees_per_update` new trees, the oldest retired), saves `models/model-vN.sfm` with its
+//! manifest, and publishes the new model. Predictions use the old model meanwhile.
+//!
+//! In `incremental` mode (the daemon) an update runs whenever shapes have arrived and nothing
+//! else is waiting; in `once` mode (batch training) one model is fitted when the input ends.
+//! On start, training shapes missing from the newest model (a crash between storing a shape and
+//! saving the model) trigger an update.
+
+use std::{collections::HashMap, fmt::Write as _, fs, path::Path, sync::Arc, time::Instant};
+
+use serde::Deserialize;
+
+use crate::{
+    forest::{RandomForest, RandomForestValidParams, TrainingSet, TrainingShape},
+    geodesic::HeatParams,
+    mesh::{read_mesh, write_mesh, Mesh},
+    pipeline::{
+        actor::Sink,
+        message::{shape_stem, Failure, Job, SpectralShape},
+        model::{LiveModel, ModelState},
+        store::{
+            latest_model, move_file, prune_models, read_labels, save_model_version, stored_shapes, DataDir,
+            ModelManifest,
+        },
+    },
+    regularizer::PreparedShape,
+    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
+};
+
+use super::sink::{is_claimed, reject, unix_now};
+
+/// When the trainer updates the model.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TrainMode {
+    /// Whenever labelled shapes have arrived and no more are waiting (the daemon).
+    #[default]
+    Incremental,
+    /// Once, when the input ends (batch training).
+    Once,
+}
+
+/// Settings of `trainer`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainerConfig {
+    /// When to update. Default `incremental`.
+    #[serde(default)]
+    pub mode: TrainMode,
+    /// Trees in the forest. Default 15.
+    #[serde(default = "default_trees")]
+    pub trees: usize,
+    /// New trees per incremental update (the oldest are retired). Default 5.
+    #[serde(default = "default_per_update")]
+    pub trees_per_update: usize,
+    /// Maximum tree depth. Default 25.
+    #[serde(default = "default_depth")]
+    pub max_depth: usize,
+    /// Smallest leaf. Default 1.
+    #[serde(default = "default_one")]
+    pub min_samples_leaf: usize,
+    /// Split candidates per node. Default 20.
+    #[serde(default = "default_candidates")]
+    pub candidates_per_node: usize,
+    /// Seed. Default 0.
+    #[serde(default)]
+    pub seed: u64,
+    /// The reference shape (a training shape's name); default: the first, in name order, that
+    /// carries every label.
+    #[serde(default)]
+    pub reference: Option<String>,
+    /// Model versions kept in `models/`. Default 5.
+    #[serde(default = "default_keep")]
+    pub keep_models: usize,
+    /// Start from no model even if `models/` has one (evaluation runs). Default false.
+    #[serde(default)]
+    pub fresh: bool,
+    /// Incremental mode: update once no labelled shape has arrived for this long
+    /// (milliseconds), so shapes dropped together make one update. Default 2000.
+    #[serde(default = "default_quiet")]
+    pub quiet_ms: u64,
+}
+
+fn default_quiet() -> u64 {
+    2000
+}
+
+fn default_trees() -> usize {
+    15
+}
+fn default_per_update() -> usize {
+    5
+}
+fn default_depth() -> usize {
+    25
+}
+fn default_one() -> usize {
+    1
+}
+fn default_candidates() -> usize {
+    20
+}
+fn default_keep() -> usize {
+    5
+}
+
+impl Default for TrainerConfig {
+    fn default() -> Self {
+        Self {
+            mode: TrainMode::Incremental,
+            trees: default_trees(),
+            trees_per_update: default_per_update(),
+            max_depth: default_depth(),
+            min_samples_leaf: 1,
+            candidates_per_node: default_candidates(),
+            seed: 0,
+            reference: None,
+            keep_models: default_keep(),
+            fresh: false,
+            quiet_ms: default_quiet(),
+        }
+    }
+}
+
+impl TrainerConfig {
+    /// The forest hyper-parameters, checked (the error names the parameter).
+    pub fn forest_params(&self) -> Result<RandomForestValidParams, String> {
+        RandomForest::params()
+            .n_trees(self.trees)
+            .trees_per_update(self.trees_per_update)
+            .max_depth(self.max_depth)
+            .min_samples_leaf(self.min_samples_leaf)
+            .candidates_per_node(self.candidates_per_node)
+            .seed(self.seed)
+            .check()
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// The reference table of a labelled shape: `table[label]` = the first vertex carrying it, or
+/// the labels no vertex carries.
+///
+/// ```
+/// use shapeforest::pipeline::stages::label_table;
+/// assert_eq!(label_table(&[Some(1), Some(0), None], 2), Ok(vec![1, 0]));
+/// assert_eq!(label_table(&[Some(1), None], 3), Err(vec![0, 2]));
+/// ```
+pub fn label_table(labels: &[Option<u32>], n_labels: usize) -> Result<Vec<usize>, Vec<usize>> {
+    let mut table = vec![usize::MAX; n_labels];
+    for (v, l) in labels.iter().enumerate() {
+        if let Some(l) = l {
+            if let Some(slot) = table.get_mut(*l as usize) {
+                if *slot == usize::MAX {
+                    *slot = v;
+                }
+            }
+        }
+    }
+    let missing: Vec<usize> = (0..n_labels).filter(|&l| table[l] == usize::MAX).collect();
+    if missing.is_empty() {
+        Ok(table)
+    } else {
+        Err(missing)
+    }
+}
+
+/// A stored training shape read back: mesh, labels, spectrum.
+fn load_stored(
+    dir: &Path,
+    name: &str,
+    params: &SpectrumParams,
+    cache: Option<&SpectrumCache>,
+) -> Result<(Arc<Mesh>, Vec<Option<u32>>, Spectrum), String> {
+    let stored = stored_shapes(dir)
+        .into_iter()
+        .find(|s| s.name == name)
+        .ok_or_else(|| format!("training shape `{name}` is missing from {}", dir.display()))?;
+    let mesh = read_mesh(&stored.mesh).map_err(|e| e.to_string())?;
+    let labels = read_labels(&stored.labels, mesh.n_vertices())?;
+    let spectrum = match cache {
+        Some(c) => c.get_or_compute(&mesh, params),
+        None => compute_spectrum(&mesh, params),
+    }
+    .map_err(|e| format!("{}: {e}", stored.mesh.display()))?;
+    Ok((Arc::new(mesh), labels, spectrum))
+}
+
+/// Reads the newest model of a data folder that loads, with its reference shape, ready to
+/// serve; `Ok(None)` when there is none. Unreadable versions are skipped with a warning.
+pub fn load_live_model(data: &DataDir, heat: HeatParams) -> Result<Option<ModelState>, String> {
+    let (found, problems) = latest_model(&data.models());
+    for p in problems {
+        tracing::warn!("skipping a model version: {p}");
+    }
+    let Some((manifest, forest)) = found else { return Ok(None) };
+    let cache = SpectrumCache::new(data.cache()).ok();
+    let params = SpectrumParams::new(forest.k());
+    let (mesh, labels, spectrum) =
+        load_stored(&data.training(), &manifest.reference, &params, cache.as_ref())
+            .map_err(|e| format!("model v{}: reference: {e}", manifest.version))?;
+    let table = label_table(&labels, forest.n_labels()).map_err(|missing| {
+        format!(
+            "model v{}: reference `{}` lacks {} labels",
+            manifest.version,
+            manifest.reference,
+            missing.len()
+        )
+    })?;
+    let reference = PreparedShape::new(mesh, Arc::new(spectrum), heat).map_err(|e| e.to_string())?;
+    Ok(Some(ModelState {
+        version: manifest.version,
+        forest: Arc::new(forest),
+        reference_name: manifest.reference,
+        reference: Arc::new(reference),
+        label_to_vertex: Arc::new(table),
+        training_shapes: manifest.training_shapes,
+    }))
+}
+
+/// Learns from labelled shapes and publishes new model versions.
+pub struct TrainerSink {
+    data: DataDir,
+    config: TrainerConfig,
+    params: RandomForestValidParams,
+    heat: HeatParams,
+    live: Arc<LiveModel>,
+    cache: Option<SpectrumCache>,
+    /// Arrived, not yet in a model.
+    pending: Vec<(Job, SpectralShape)>,
+    /// Shapes already learnt, loaded on the first update.
+    known: HashMap<String, TrainingShape>,
+    /// When the last shape arrived.
+    last_arrival: Instant,
+}
+
+impl TrainerSink {
+    /// A trainer over `data`, publishing into `live`.
+    pub fn new(
+        data: DataDir,
+        config: TrainerConfig,
+        heat: HeatParams,
+        live: Arc<LiveModel>,
+    ) -> Result<Self, String> {
+        let params = config.forest_params()?;
+        let cache = SpectrumCache::new(data.cache()).ok();
+        Ok(Self {
+            data,
+            config,
+            params,
+            heat,
+            live,
+            cache,
+            pending: Vec::new(),
+            known: HashMap::new(),
+            last_arrival: Instant::now(),
+        })
+    }
+
+    /// Stores a pending shape in `training/` (moves a claimed input, writes anything else).
+    fn store(&self, job: &Job, shape: &SpectralShape) -> Result<(), String> {
+        let dir = self.data.training();
+        fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        if job.source.as_ref().is_some_and(|s| s.starts_with(&dir)) {
+            return Ok(()); // already stored
+        }
+        // Drop an older copy of the same name (a crash before its model was saved).
+        for old in stored_shapes(&dir).into_iter().filter(|s| s.name == job.name) {
+            let _ = fs::remove_file(&old.mesh);
+            let _ = fs::remove_file(&old.labels);
+        }
+        match (&job.source, &job.labels_file) {
+            (Some(src), Some(lab)) if is_claimed(&self.data, job) => {
+                let name =
+                    |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+                let mesh_name = name(src).replacen(&shape_stem(src), &job.name, 1);
+                let lab_ext = lab.extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or_default();
+                move_file(lab, &dir.join(format!("{}.{lab_ext}", job.name))).map_err(|e| e.to_string())?;
+                move_file(src, &dir.join(mesh_name)).map_err(|e| e.to_string())?;
+            }
+            _ => {
+                let labels = shape.shape.labels.as_deref().map(Vec::as_slice).unwrap_or(&[]);
+                let mut text = String::with_capacity(labels.len() * 6);
+                for l in labels {
+                    match l {
+                        Some(l) => writeln!(text, "{l}"),
+                        None => writeln!(text, "-1"),
+                    }
+                    .map_err(|e| e.to_string())?;
+                }
+                let lab = dir.join(format!("{}.labels", job.name));
+                super::super::store::atomic_write(&lab, text.as_bytes()).map_err(|e| e.to_string())?;
+                write_mesh(dir.join(format!("{}.off", job.name)), &shape.shape.mesh)
+                    .map_err(|e| e.to_string())?;
+                // A claimed input without a label file (identity labels) is consumed.
+                if is_claimed(&self.data, job) {
+                    if let Some(src) = &job.source {
+                        let _ = fs::remove_file(src);
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Loads the stored shapes the current model has learnt (once).
+    fn load_known(&mut self, k: usize) -> Result<(), String> {
+        let Some(model) = self.live.current() else { return Ok(()) };
+        let params = SpectrumParams::new(k);
+        for name in &model.training_shapes {
+            if self.known.contains_key(name) {
+                continue;
+            }
+            let (_, labels, spectrum) =
+                load_stored(&self.data.training(), name, &params, self.cache.as_ref())?;
+            self.known.insert(
+                name.clone(),
+                TrainingShape { name: name.clone(), spectrum: Arc::new(spectrum), labels },
+            );
+        }
+        Ok(())
+    }
+
+    /// One model update with the pending shapes.
+    fn update(&mut self) -> Result<(), String> {
+        if self.pending.is_empty() {
+            return Ok(());
+        }
+        let t0 = Instant::now();
+        let current = self.live.current();
+        let pending = std::mem::take(&mut self.pending);
+        // Shapes the current model already has (re-delivered after a crash): just finish them.
+        let mut fresh = Vec::new();
+        for (job, shape) in pending {
+            if current.as_ref().is_some_and(|m| m.training_shapes.contains(&job.name)) {
+                tracing::info!(shape = %job.name, "already learnt by the current model");
+                self.store(&job, &shape)?;
+                continue;
+            }
+            fresh.push((job, shape));
+        }
+        if fresh.is_empty() {
+            return Ok(());
+        }
+        let n_labels = match &current {
+            Some(m) => m.forest.n_labels(),
+            None => fresh
+                .iter()
+                .filter_map(|(_, s)| s.shape.labels.as_ref())
+                .flat_map(|l| l.iter().flatten())
+                .map(|&l| l as usize + 1)
+                .max()
+                .unwrap_or(0),
+        };
+        // Validate each new shape alone, so one bad shape is rejected by name.
+        let mut accepted = Vec::new();
+        for (job, shape) in fresh {
+            let ts = TrainingShape {
+                name: job.name.clone(),
+                spectrum: shape.spectrum.clone(),
+                labels: shape.shape.labels.as_deref().cloned().unwrap_or_default(),
+            };
+            let check = match current.as_ref() {
+                Some(m) if shape.spectrum.k() < m.forest.k() => Err(format!(
+                    "its spectrum has {} eigenpairs, the model needs {}",
+                    shape.spectrum.k(),
+                    m.forest.k()
+                )),
+                _ => TrainingSet::new(vec![ts.clone()], n_labels).map(|_| ()).map_err(|e| e.to_string()),
+            };
+            match check {
+                Ok(()) => accepted.push((job, shape, ts)),
+                Err(e) => {
+                    reject(&self.data, &job, &Failure::bad_input("trainer", e))?;
+                }
+            }
+        }
+        if accepted.is_empty() {
+            return Ok(());
+        }
+        let k = current.as_ref().map_or(accepted[0].1.spectrum.k(), |m| m.forest.k());
+        self.load_known(k)?;
+        for (job, shape, _) in &accepted {
+            self.store(job, shape)?;
+        }
+        let mut shapes: Vec<TrainingShape> = self.known.values().cloned().collect();
+        shapes.extend(accepted.iter().map(|a| a.2.clone()));
+        shapes.sort_by(|a, b| super::source::natural_key(&a.name).cmp(&super::source::natural_key(&b.name)));
+        let set = TrainingSet::new(shapes, n_labels).map_err(|e| e.to_string())?;
+        let forest = self
+            .params
+            .fit_with(current.as_ref().map(|m| m.forest.as_ref()), &set)
+            .map_err(|e| format!("training failed: {e}"))?;
+        // The reference: kept from the current model, else chosen among the shapes.
+        let (reference_name, reference, table) = match &current {
+            Some(m) => (m.reference_name.clone(), m.reference.clone(), m.label_to_vertex.clone()),
+            None => {
+                let candidates: Vec<&TrainingShape> = match &self.config.reference {
+                    Some(r) => set.shapes().iter().filter(|s| &s.name == r).collect(),
+                    None => set.shapes().iter().collect(),
+                };
+                let chosen = candidates
+                    .iter()
+                    .find_map(|s| label_table(&s.labels, n_labels).ok().map(|t| (*s, t)))
+                    .ok_or_else(|| match &self.config.reference {
+                        Some(r) => {
+                            format!("the reference `{r}` is not a training shape carrying every label")
+                        }
+                        None => {
+                            "no training shape carries every label, so none can be the reference".to_string()
+                        }
+                    })?;
+                let (ts, table) = chosen;
+                let mesh = accepted
+                    .iter()
+                    .find(|a| a.0.name == ts.name)
+                    .map(|a| a.1.shape.mesh.clone())
+                    .ok_or_else(|| format!("reference `{}` not among the new shapes", ts.name))?;
+                let prepared =
+                    PreparedShape::new(mesh, ts.spectrum.clone(), self.heat).map_err(|e| e.to_string())?;
+                (ts.name.clone(), Arc::new(prepared), Arc::new(table))
+            }
+        };
+        let (on_disk, _) = latest_model(&self.data.models());
+        let version =
+            current.as_ref().map_or(0, |m| m.version).max(on_disk.map_or(0, |(m, _)| m.version)) + 1;
+        let names: Vec<String> = set.shapes().iter().map(|s| s.name.clone()).collect();
+        let manifest = ModelManifest {
+            version,
+            model_file: format!("model-v{version:06}.sfm"),
+            created_unix: unix_now(),
+            reference: reference_name.clone(),
+            training_shapes: names.clone(),
+            n_labels,
+            n_trees: forest.n_trees(),
+            k: forest.k(),
+        };
+        let path = save_model_version(&self.data.models(), &forest, &manifest)?;
+        prune_models(&self.data.models(), self.config.keep_models.max(1));
+        for (_, _, ts) in accepted {
+            self.known.insert(ts.name.clone(), ts);
+        }
+        self.live.publish(Arc::new(ModelState {
+            version,
+            forest: Arc::new(forest),
+            reference_name,
+            reference,
+            label_to_vertex: table,
+            training_shapes: names.clone(),
+        }));
+        tracing::info!(
+            version,
+            shapes = names.len(),
+            "model v{version} saved to {} ({} training shapes, {:.1} s)",
+            path.display(),
+            names.len(),
+            t0.elapsed().as_secs_f64()
+        );
+        Ok(())
+    }
+}
+
+impl Sink for TrainerSink {
+    type In = SpectralShape;
+
+    fn start(&mut self) -> Result<(), String> {
+        // Stored shapes the newest model has not learnt (a crash before its save): learn them.
+        let Some(model) = self.live.current() else { return Ok(()) };
+        let missing: Vec<_> = stored_shapes(&self.data.training())
+            .into_iter()
+            .filter(|s| !model.training_shapes.contains(&s.name))
+            .collect();
+        if missing.is_empty() {
+            return Ok(());
+        }
+        let params = SpectrumParams::new(model.forest.k());
+        for s in missing {
+            tracing::info!(shape = %s.name, "stored training shape not in model v{}: learning it", model.version);
+            match load_stored(&self.data.training(), &s.name, &params, self.cache.as_ref()) {
+                Ok((mesh, labels, spectrum)) => {
+                    let mut job = Job::generated(0, &s.name);
+                    job.source = Some(s.mesh.clone());
+                    let shape = crate::pipeline::message::Shape { mesh, labels: Some(Arc::new(labels)) };
+                    self.pending.push((job, SpectralShape { shape, spectrum: Arc::new(spectrum) }));
+                }
+                Err(e) => tracing::warn!(shape = %s.name, "cannot read a stored training shape: {e}"),
+            }
+        }
+        self.update()
+    }
+
+    fn consume(&mut self, job: Job, body: Result<SpectralShape, Failure>) -> Result<(), String> {
+        match body {
+            Err(f) => reject(&self.data, &job, &f).map(|_| ()),
+            Ok(shape) if shape.shape.labels.is_none() => reject(
+                &self.data,
+                &job,
+                &Failure::bad_input("trainer", "the shape has no labels to learn from"),
+            )
+            .map(|_| ()),
+            Ok(shape) => {
+                tracing::info!(shape = %job.name, "labelled shape received; the model is updated once no more arrive");
+                self.pending.push((job, shape));
+                self.last_arrival = Instant::now();
+                Ok(())
+            }
+        }
+    }
+
+    fn idle(&mut self) -> Result<(), String> {
+        let quiet = std::time::Duration::from_millis(self.config.quiet_ms);
+        match self.config.mode {
+            TrainMode::Incremental if self.last_arrival.elapsed() >= quiet => self.update(),
+            _ => Ok(()),
+        }
+    }
+
+    fn tick(&self) -> Option<std::time::Duration> {
+        match self.config.mode {
+            TrainMode::Incremental => Some(std::time::Duration::from_millis(200)),
+            TrainMode::Once => None,
+        }
+    }
+
+    fn finish(&mut self) -> Result<(), String> {
+        let r = self.update();
+        if self.live.current().is_none() {
+            self.live.close(match &r {
+                Err(e) => format!("training failed: {e}"),
+                Ok(()) => "no labelled shape was accepted for training".to_string(),
+            });
+        }
+        r
+    }
+}

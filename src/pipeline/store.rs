@@ -1,0 +1,411 @@
+//! The daemon's data folder and the file moves that make it restart-safe.
+//!
+//! ```text
+//! shapeforest-data/
+//!   incoming/    scans to match (dropped by the user)
+//!   labeled/     labelled shapes to learn from: NAME.off (or .obj/.ply/…) with NAME.labels
+//!                (one 0-based label per vertex) or NAME.vts (line k = 1-based vertex of label k)
+//!   matched/     one folder per matched scan: NAME.map.txt, NAME.colored.ply, NAME.report.json
+//!                and the scan itself
+//!   rejected/    inputs that could not be used, each with NAME.error.json
+//!   models/      model-vNNNNNN.sfm with its manifest model-vNNNNNN.json (newest = live)
+//!   training/    the labelled shapes the model has learnt from (as they arrived)
+//!   cache/       spectra, keyed by mesh content
+//!   .inflight/   inputs claimed by a running job
+//! ```
+//!
+//! An input is always in exactly one place. A source claims a file by renaming it into
+//! `.inflight/`; the sink writes a result into `matched/.partial-…/`, moves the input in beside
+//! it and renames the folder to its final name — the commit. On start, [`DataDir::recover`]
+//! commits partial results that hold their input, deletes those that do not, and returns
+//! claimed inputs to `incoming/` and `labeled/`: nothing is lost and nothing is matched twice.
+
+use std::{
+    fs,
+    io::{self, Write},
+    path::{Path, PathBuf},
+};
+
+use serde::{Deserialize, Serialize};
+
+use crate::forest::RandomForest;
+
+/// The folder layout of a daemon (see the module documentation).
+#[derive(Clone, Debug)]
+pub struct DataDir {
+    root: PathBuf,
+}
+
+/// Which kind of input a file is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InputKind {
+    /// A scan to match.
+    Scan,
+    /// A labelled shape to learn from.
+    Labeled,
+}
+
+impl InputKind {
+    fn folder(self) -> &'static str {
+        match self {
+            InputKind::Scan => "scans",
+            InputKind::Labeled => "labeled",
+        }
+    }
+}
+
+/// What [`DataDir::recover`] did.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Recovery {
+    /// Results whose commit was interrupted and is now done.
+    pub committed: Vec<PathBuf>,
+    /// Partial results without their input, deleted (the input is re-matched).
+    pub discarded: Vec<PathBuf>,
+    /// Claimed inputs returned to `incoming/` or `labeled/`.
+    pub requeued: Vec<PathBuf>,
+}
+
+impl DataDir {
+    /// The layout under `root` (nothing is created).
+    pub fn new(root: impl Into<PathBuf>) -> Self {
+        Self { root: root.into() }
+    }
+
+    /// The root folder.
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// `incoming/`.
+    pub fn incoming(&self) -> PathBuf {
+        self.root.join("incoming")
+    }
+
+    /// `labeled/`.
+    pub fn labeled(&self) -> PathBuf {
+        self.root.join("labeled")
+    }
+
+    /// `matched/`.
+    pub fn matched(&self) -> PathBuf {
+        self.root.join("matched")
+    }
+
+    /// `rejected/`.
+    pub fn rejected(&self) -> PathBuf {
+        self.root.join("rejected")
+    }
+
+    /// `models/`.
+    pub fn models(&self) -> PathBuf {
+        self.root.join("models")
+    }
+
+    /// `training/`.
+    pub fn training(&self) -> PathBuf {
+        self.root.join("training")
+    }
+
+    /// `cache/`.
+    pub fn cache(&self) -> PathBuf {
+        self.root.join("cache")
+    }
+
+    /// `.inflight/scans` or `.inflight/labeled`.
+    pub fn inflight(&self, kind: InputKind) -> PathBuf {
+        self.root.join(".inflight").join(kind.folder())
+    }
+
+    /// The folder a kind of input arrives in.
+    pub fn arrivals(&self, kind: InputKind) -> PathBuf {
+        match kind {
+            InputKind::Scan => self.incoming(),
+            InputKind::Labeled => self.labeled(),
+        }
+    }
+
+    /// Creates every folder.
+    pub fn create(&self) -> io::Result<()> {
+        for d in [
+            self.incoming(),
+            self.labeled(),
+            self.matched(),
+            self.rejected(),
+            self.models(),
+            self.training(),
+            self.cache(),
+            self.inflight(InputKind::Scan),
+            self.inflight(InputKind::Labeled),
+        ] {
+            fs::create_dir_all(&d).map_err(|e| with_path(e, &d))?;
+        }
+        Ok(())
+    }
+
+    /// Finishes what a crash interrupted (see the module documentation).
+    pub fn recover(&self) -> io::Result<Recovery> {
+        let mut rec = Recovery::default();
+        let matched = self.matched();
+        if matched.is_dir() {
+            for entry in read_dir_sorted(&matched)? {
+                let name = file_name(&entry);
+                let Some(final_name) = name.strip_prefix(".partial-") else { continue };
+                let input = fs::read_to_string(entry.join(".input")).ok().map(|s| s.trim().to_string());
+                match input.filter(|i| !i.is_empty() && entry.join(i).is_file()) {
+                    Some(_) => {
+                        let target = unique_path(&matched, final_name);
+                        fs::rename(&entry, &target).map_err(|e| with_path(e, &entry))?;
+                        rec.committed.push(target);
+                    }
+                    None => {
+                        fs::remove_dir_all(&entry).map_err(|e| with_path(e, &entry))?;
+                        rec.discarded.push(entry);
+                    }
+                }
+            }
+        }
+        for kind in [InputKind::Scan, InputKind::Labeled] {
+            let dir = self.inflight(kind);
+            if !dir.is_dir() {
+                continue;
+            }
+            for entry in read_dir_sorted(&dir)? {
+                if !entry.is_file() {
+                    continue;
+                }
+                let target = unique_path(&self.arrivals(kind), &file_name(&entry));
+                move_file(&entry, &target)?;
+                rec.requeued.push(target);
+            }
+        }
+        Ok(rec)
+    }
+}
+
+fn with_path(e: io::Error, path: &Path) -> io::Error {
+    io::Error::new(e.kind(), format!("{}: {e}", path.display()))
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+}
+
+/// The entries of a folder, sorted by name.
+pub fn read_dir_sorted(dir: &Path) -> io::Result<Vec<PathBuf>> {
+    let mut v: Vec<PathBuf> =
+        fs::read_dir(dir).map_err(|e| with_path(e, dir))?.filter_map(|e| e.ok().map(|e| e.path())).collect();
+    v.sort();
+    Ok(v)
+}
+
+/// Whether a file name looks like a mesh shapeforest reads (`.off .obj .ply .vert`, also `.gz`).
+///
+/// ```
+/// use std::path::Path;
+/// use shapeforest::pipeline::is_mesh_file;
+/// assert!(is_mesh_file(Path::new("a/cat0.off")));
+/// assert!(is_mesh_file(Path::new("b.PLY")));
+/// assert!(is_mesh_file(Path::new("c.off.gz")));
+/// assert!(!is_mesh_file(Path::new("cat0.labels")));
+/// assert!(!is_mesh_file(Path::new(".cat0.off.part")));
+/// ```
+pub fn is_mesh_file(path: &Path) -> bool {
+    let name = file_name(path).to_ascii_lowercase();
+    if name.starts_with('.') {
+        return false;
+    }
+    let name = name.strip_suffix(".gz").unwrap_or(&name);
+    [".off", ".obj", ".ply", ".vert"].iter().any(|e| name.ends_with(e))
+}
+
+/// The label map that goes with a mesh: `NAME.labels` (per vertex) or `NAME.vts` (per label),
+/// next to it.
+pub fn label_sidecar(mesh: &Path) -> Option<PathBuf> {
+    let dir = mesh.parent().unwrap_or(Path::new("."));
+    let stem = super::message::shape_stem(mesh);
+    ["labels", "vts"].iter().map(|ext| dir.join(format!("{stem}.{ext}"))).find(|p| p.is_file())
+}
+
+/// Reads a label map for a mesh of `n_vertices`: `.vts` files are per-label and 1-based (line
+/// `k` = the vertex carrying label `k`); anything else is per-vertex and 0-based (line `i` = the
+/// label of vertex `i`; `-1` or `none` for an unlabelled vertex). Errors name the file and line.
+pub fn read_labels(path: &Path, n_vertices: usize) -> Result<Vec<Option<u32>>, String> {
+    let file = fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let reader = io::BufReader::new(file);
+    let per_label = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("vts"));
+    let labels = if per_label {
+        crate::forest::read_per_label_map(reader, true, n_vertices)
+    } else {
+        crate::forest::read_label_map(reader, false, u32::MAX as usize)
+    }
+    .map_err(|e| format!("{}: {e}", path.display()))?;
+    if labels.len() != n_vertices {
+        return Err(format!(
+            "{}: {} labels for a mesh of {n_vertices} vertices (one line per vertex expected)",
+            path.display(),
+            labels.len()
+        ));
+    }
+    if labels.iter().all(Option::is_none) {
+        return Err(format!("{}: no vertex has a label", path.display()));
+    }
+    Ok(labels)
+}
+
+/// Writes a file atomically: a temporary file in the same folder, synced, then renamed.
+pub fn atomic_write(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let tmp = dir.join(format!(".{}.tmp{}", file_name(path), std::process::id()));
+    let r = (|| {
+        let mut f = fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        fs::rename(&tmp, path)
+    })();
+    if r.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    r.map_err(|e| with_path(e, path))
+}
+
+/// Moves a file (a rename; a copy and delete across file systems).
+pub fn move_file(from: &Path, to: &Path) -> io::Result<()> {
+    match fs::rename(from, to) {
+        Ok(()) => Ok(()),
+        Err(_) if from.is_file() => {
+            fs::copy(from, to).map_err(|e| with_path(e, from))?;
+            fs::remove_file(from).map_err(|e| with_path(e, from))
+        }
+        Err(e) => Err(with_path(e, from)),
+    }
+}
+
+/// `dir/name`, or `dir/name-2`, `dir/name-3`, … (before the extensions) if taken.
+///
+/// ```
+/// let d = tempfile::tempdir().unwrap();
+/// std::fs::write(d.path().join("a.off"), "").unwrap();
+/// let p = shapeforest::pipeline::unique_path(d.path(), "a.off");
+/// assert_eq!(p.file_name().unwrap(), "a-2.off");
+/// ```
+pub fn unique_path(dir: &Path, name: &str) -> PathBuf {
+    let first = dir.join(name);
+    if !first.exists() {
+        return first;
+    }
+    let (stem, ext) = match name.find('.') {
+        Some(i) if i > 0 => (&name[..i], &name[i..]),
+        _ => (name, ""),
+    };
+    (2..).map(|i| dir.join(format!("{stem}-{i}{ext}"))).find(|p| !p.exists()).unwrap_or(first)
+}
+
+/// What a model file was made from, written beside it as `model-vNNNNNN.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelManifest {
+    /// Model version.
+    pub version: u64,
+    /// File name of the model, in the same folder.
+    pub model_file: String,
+    /// Seconds since the Unix epoch when it was saved.
+    pub created_unix: u64,
+    /// The reference shape (a name in `training/`).
+    pub reference: String,
+    /// Training shapes (names in `training/`).
+    pub training_shapes: Vec<String>,
+    /// Labels.
+    pub n_labels: usize,
+    /// Trees.
+    pub n_trees: usize,
+    /// Eigenpairs the forest uses.
+    pub k: usize,
+}
+
+/// Saves a model version atomically: the model file, then its manifest (the manifest's presence
+/// marks a complete version). Returns the model's path.
+pub fn save_model_version(
+    dir: &Path,
+    forest: &RandomForest,
+    manifest: &ModelManifest,
+) -> Result<PathBuf, String> {
+    fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let path = dir.join(&manifest.model_file);
+    forest.save(&path).map_err(|e| e.to_string())?;
+    let json = serde_json::to_string_pretty(manifest).map_err(|e| e.to_string())? + "\n";
+    let mpath = dir.join(format!("model-v{:06}.json", manifest.version));
+    atomic_write(&mpath, json.as_bytes()).map_err(|e| e.to_string())?;
+    Ok(path)
+}
+
+/// The newest complete model version in `dir` that loads, with the problems met on the way
+/// (unreadable manifests or models are skipped, newest first).
+pub fn latest_model(dir: &Path) -> (Option<(ModelManifest, RandomForest)>, Vec<String>) {
+    let mut problems = Vec::new();
+    let Ok(entries) = read_dir_sorted(dir) else { return (None, problems) };
+    let mut manifests: Vec<PathBuf> = entries
+        .into_iter()
+        .filter(|p| {
+            let n = file_name(p);
+            n.starts_with("model-v") && n.ends_with(".json")
+        })
+        .collect();
+    manifests.reverse();
+    for m in manifests {
+        let manifest: ModelManifest = match fs::read_to_string(&m)
+            .map_err(|e| e.to_string())
+            .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))
+        {
+            Ok(x) => x,
+            Err(e) => {
+                problems.push(format!("{}: {e}", m.display()));
+                continue;
+            }
+        };
+        match RandomForest::load(dir.join(&manifest.model_file)) {
+            Ok(f) => return (Some((manifest, f)), problems),
+            Err(e) => problems.push(e.to_string()),
+        }
+    }
+    (None, problems)
+}
+
+/// Deletes all but the newest `keep` model versions.
+pub fn prune_models(dir: &Path, keep: usize) {
+    let Ok(entries) = read_dir_sorted(dir) else { return };
+    let mut versions: Vec<String> = entries
+        .iter()
+        .map(|p| file_name(p))
+        .filter(|n| n.starts_with("model-v") && n.ends_with(".json"))
+        .map(|n| n.trim_end_matches(".json").to_string())
+        .collect();
+    versions.sort();
+    let n = versions.len().saturating_sub(keep);
+    for stem in &versions[..n] {
+        let _ = fs::remove_file(dir.join(format!("{stem}.json")));
+        let _ = fs::remove_file(dir.join(format!("{stem}.sfm")));
+    }
+}
+
+/// A training shape stored in `training/`: its mesh file and label map.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StoredShape {
+    /// Name (the mesh file's stem).
+    pub name: String,
+    /// Mesh file.
+    pub mesh: PathBuf,
+    /// Label map.
+    pub labels: PathBuf,
+}
+
+/// The shapes in a `training/` folder, by name.
+pub fn stored_shapes(dir: &Path) -> Vec<StoredShape> {
+    let Ok(entries) = read_dir_sorted(dir) else { return Vec::new() };
+    entries
+        .into_iter()
+        .filter(|p| p.is_file() && is_mesh_file(p))
+        .filter_map(|mesh| {
+            let labels = label_sidecar(&mesh)?;
+            Some(StoredShape { name: super::message::shape_stem(&mesh), mesh, labels })
+        })
+        .collect()
+}
