@@ -1,173 +1,285 @@
-//! `shapeforest demo`: the whole method end to end on the built-in synthetic creature family —
-//! spectra, forest training, prediction on held-out poses, regularisation, evaluation against
-//! the known ground truth, and outputs a person can open.
+//! `shapeforest demo`: the watch-folder daemon end to end on built-in data. It starts the daemon
+//! pipeline (pipelines/watch.toml) on a fresh folder, drops labelled synthetic creatures into
+//! `labeled/` and waits for the model, then drops held-out poses (and one broken file) into
+//! `incoming/`, waits for the results, stops the daemon as Ctrl-C would, and scores the maps it
+//! wrote against the known ground truth.
 
-use std::{fmt::Write as _, path::PathBuf, sync::Arc, time::Instant};
+use std::{
+    fmt::Write as _,
+    path::{Path, PathBuf},
+    sync::Arc,
+    thread,
+    time::{Duration, Instant},
+};
 
-use anyhow::{Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use shapeforest::{
-    descriptor::WksParams,
     eval::{geodesic_errors, ErrorSummary},
-    forest::{labels_identity, RandomForest, TrainingSet, TrainingShape, WksKnn},
     geodesic::HeatParams,
-    mesh::write_mesh,
-    regularizer::{regularize, PreparedShape, RegularizerParams},
+    mesh::{read_mesh, write_mesh},
+    pipeline::{daemon::run_spec, store::ModelManifest, DataDir, PipelineSpec, RunOptions, Shutdown},
+    regularizer::PreparedShape,
+    spectral::{SpectrumCache, SpectrumParams},
     synth::{creature_family, CreatureParams},
 };
 
-use super::common::{progress, spectra};
+use super::common::progress;
+
+/// The daemon's pipeline, built in so the demo runs from anywhere.
+const WATCH: &str = include_str!("../../pipelines/watch.toml");
+/// Marks a folder as the demo's own, so a later run may clear it.
+const MARKER: &str = ".shapeforest-demo";
 
 #[derive(Debug, Args)]
 pub struct DemoArgs {
     /// Vertices per synthetic shape.
     #[arg(long, default_value_t = 5000)]
     pub vertices: usize,
-    /// Training shapes (the paper uses 6).
+    /// Labelled shapes to learn from (the paper uses 6).
     #[arg(long, default_value_t = 6)]
     pub train: usize,
-    /// Held-out shapes to match.
+    /// Held-out scans to match.
     #[arg(long, default_value_t = 2)]
     pub test: usize,
-    /// Trees in the forest.
-    #[arg(long, default_value_t = 15)]
-    pub trees: usize,
-    /// Seed of the shape family and the forest.
+    /// Seed of the shape family.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Where to write the model, the shapes and the maps.
+    /// The daemon's data folder (cleared first if an earlier demo made it).
     #[arg(long, default_value = "shapeforest-demo")]
     pub out: PathBuf,
+    /// Give up waiting for the daemon after this many seconds.
+    #[arg(long, default_value_t = 900)]
+    pub timeout: u64,
 }
 
-/// One row of the accuracy table.
-struct Row {
-    method: &'static str,
-    strict: ErrorSummary,
-    symmetric: ErrorSummary,
+fn fresh_folder(dir: &Path) -> Result<()> {
+    if dir.exists() {
+        let empty = std::fs::read_dir(dir).map(|mut d| d.next().is_none()).unwrap_or(false);
+        if !empty && !dir.join(MARKER).exists() {
+            bail!("{} exists and was not made by the demo; choose another --out", dir.display());
+        }
+        std::fs::remove_dir_all(dir).with_context(|| format!("cannot clear {}", dir.display()))?;
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    std::fs::write(dir.join(MARKER), "made by `shapeforest demo`; removed by the next demo run\n")?;
+    Ok(())
+}
+
+/// Writes a file into a watched folder the way a careful copier does: aside, then renamed in.
+fn drop_file(
+    staging: &Path,
+    target_dir: &Path,
+    name: &str,
+    write: impl FnOnce(&Path) -> Result<()>,
+) -> Result<()> {
+    let tmp = staging.join(name);
+    write(&tmp)?;
+    std::fs::rename(&tmp, target_dir.join(name)).with_context(|| format!("cannot move {name} into place"))
+}
+
+/// The newest model manifest in `models/`, if any.
+fn newest_manifest(data: &DataDir) -> Option<ModelManifest> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(data.models())
+        .ok()?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "json"))
+        .collect();
+    v.sort();
+    let text = std::fs::read_to_string(v.last()?).ok()?;
+    serde_json::from_str(&text).ok()
+}
+
+/// Waits until `done()` holds, ticking a progress bar with `count()`; fails if the daemon
+/// stopped or the time is up.
+fn wait_for(
+    what: &str,
+    total: u64,
+    deadline: Instant,
+    daemon: &thread::JoinHandle<std::result::Result<shapeforest::pipeline::PipelineReport, String>>,
+    mut count: impl FnMut() -> u64,
+) -> Result<()> {
+    let bar = progress(total, what);
+    loop {
+        let n = count();
+        bar.set_position(n.min(total));
+        if n >= total {
+            bar.finish_and_clear();
+            return Ok(());
+        }
+        if daemon.is_finished() {
+            bar.abandon();
+            bail!("the daemon stopped while {what}");
+        }
+        if Instant::now() > deadline {
+            bar.abandon();
+            bail!("timed out while {what}");
+        }
+        thread::sleep(Duration::from_millis(100));
+    }
 }
 
 pub fn run(args: DemoArgs) -> Result<()> {
     let started = Instant::now();
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    if args.train == 0 || args.test == 0 {
+        bail!("--train and --test must be at least 1");
+    }
+    fresh_folder(&args.out)?;
+    let data = DataDir::new(&args.out);
     println!(
-        "shapeforest demo: {} training + {} held-out synthetic creatures of ~{} vertices",
-        args.train, args.test, args.vertices
+        "shapeforest demo: the watch-folder daemon on {} — {} labelled + {} held-out synthetic creatures of ~{} vertices",
+        args.out.display(),
+        args.train,
+        args.test,
+        args.vertices
     );
-
     let t0 = Instant::now();
     let fam = creature_family(
         &CreatureParams { target_vertices: args.vertices, seed: args.seed, ..Default::default() },
         args.train + args.test,
     )?;
     let n = fam.template.n_vertices();
-    println!(
-        "  shapes: {} of {n} vertices, left/right symmetric, posed ({:.1} s)",
-        fam.shapes.len(),
-        t0.elapsed().as_secs_f64()
-    );
+    println!("  1. built {} shapes of {n} vertices ({:.1} s)", fam.shapes.len(), t0.elapsed().as_secs_f64());
 
-    let t0 = Instant::now();
-    let meshes: Vec<_> = fam.shapes.iter().collect();
-    let spectra = spectra(&meshes, 100, None, "spectra")?;
-    println!("  Laplace spectra, K = 100, all shapes: {:.1} s", t0.elapsed().as_secs_f64());
-
-    let training: Vec<TrainingShape> = (0..args.train)
-        .map(|i| TrainingShape {
-            name: format!("creature{i}"),
-            spectrum: spectra[i].clone(),
-            labels: labels_identity(n),
-        })
-        .collect();
-    let set = TrainingSet::new(training, n)?;
-    let t0 = Instant::now();
-    let bar = Arc::new(progress(args.trees as u64, "trees"));
-    let b = bar.clone();
-    let forest = RandomForest::params().n_trees(args.trees).seed(args.seed).check()?.fit_with_progress(
-        None,
-        &set,
-        &move |_| b.inc(1),
-    )?;
-    bar.finish_and_clear();
-    println!(
-        "  forest: {} trees on {} samples, {:.1} s",
-        forest.n_trees(),
-        set.n_samples(),
-        t0.elapsed().as_secs_f64()
-    );
-    let model_path = args.out.join("model.sfm");
-    forest.save(&model_path)?;
-    let knn = WksKnn::fit(&set, &WksParams::default(), forest.energy_grid().range, forest.k())?;
-
-    let reference =
-        PreparedShape::new(Arc::new(fam.shapes[0].clone()), spectra[0].clone(), HeatParams::default())?;
-    write_mesh(args.out.join("reference.off"), &fam.shapes[0])?;
-    // Evaluate on every 5th vertex: distance fields on the reference from their true matches.
-    let evaluated: Vec<usize> = (0..n).step_by(5).collect();
-    let fields = reference.heat.distances_from_many(&evaluated)?;
-    let area = reference.mesh.surface_area();
-    let score = |map: &[usize]| -> Result<(ErrorSummary, ErrorSummary)> {
-        let (s, y) = geodesic_errors(map, &evaluated, fields.as_ref(), Some(&fam.symmetry), area)?;
-        Ok((ErrorSummary::of(&s), ErrorSummary::of(&y.unwrap_or_default())))
+    let spec = PipelineSpec::from_toml(WATCH, "built-in watch.toml")?;
+    let shutdown = Shutdown::new();
+    let daemon = {
+        let (spec, out, sd) = (spec.clone(), args.out.clone(), shutdown.clone());
+        let options = RunOptions { handle_signals: true, stop_after: None };
+        thread::spawn(move || run_spec(&spec, Some(&out), options, Some(sd), |_| Ok(())))
     };
-
-    let mut rows: Vec<Row> = Vec::new();
-    let params = RegularizerParams::default();
-    for (t, (shape, spectrum)) in fam.shapes.iter().zip(&spectra).enumerate().skip(args.train) {
-        let t0 = Instant::now();
-        let prediction = forest.predict(spectrum)?;
-        let t_pred = t0.elapsed().as_secs_f64();
-        let test =
-            PreparedShape::new(Arc::new(fam.shapes[t].clone()), spectra[t].clone(), HeatParams::default())?;
-        let t0 = Instant::now();
-        let dense = regularize(&test, &reference, &prediction, None, &params)?;
-        let t_reg = t0.elapsed().as_secs_f64();
-        let raw: Vec<usize> = dense.forest_map.iter().map(|m| m.unwrap_or(0)).collect();
-        let knn_pred = knn.predict(spectrum, prediction.mean_support().round().max(1.0) as usize)?;
-        let knn_dense = regularize(&test, &reference, &knn_pred, None, &params)?;
-        let knn_raw: Vec<usize> = knn_dense.forest_map.iter().map(|m| m.unwrap_or(0)).collect();
-        for (method, map) in [
-            ("forest, raw MAP", &raw),
-            ("forest + regulariser", &dense.map),
-            ("WKS k-NN, raw", &knn_raw),
-            ("WKS k-NN + regulariser", &knn_dense.map),
-        ] {
-            let (strict, symmetric) = score(map)?;
-            rows.push(Row { method, strict, symmetric });
+    let deadline = Instant::now() + Duration::from_secs(args.timeout);
+    while !data.labeled().is_dir() || !data.incoming().is_dir() {
+        if daemon.is_finished() {
+            let r = daemon.join().map_err(|_| anyhow!("the daemon panicked"))?;
+            bail!("the daemon stopped at start: {}", r.err().unwrap_or_default());
         }
-        let name = format!("creature{t}");
-        write_mesh(args.out.join(format!("{name}.off")), shape)?;
-        let mut text = format!("# {name} vertex -> reference vertex (0-based), shapeforest demo\n");
-        for r in &dense.map {
-            let _ = writeln!(text, "{r}");
-        }
-        std::fs::write(args.out.join(format!("{name}.map.txt")), text)?;
-        println!(
-            "  {name}: prediction {t_pred:.2} s, regulariser {t_reg:.2} s ({} consistent matches, orientation score {:+.2}{})",
-            dense.matches.len(),
-            dense.orientation_score,
-            if dense.mirror_rejected { ", mirror image rejected" } else { "" }
-        );
+        thread::sleep(Duration::from_millis(20));
     }
+    println!("  2. daemon started (pipelines/watch.toml): watching incoming/ and labeled/");
 
-    println!("\n  accuracy on the held-out shapes (geodesic error / √area; {} points each)", evaluated.len());
-    println!("  {:<24} {:>9} {:>9} {:>7}   {:>14}", "method", "≤ 0.05", "≤ 0.10", "mean", "sym. ≤ 0.05");
-    for method in ["forest, raw MAP", "forest + regulariser", "WKS k-NN, raw", "WKS k-NN + regulariser"] {
-        let sel: Vec<&Row> = rows.iter().filter(|r| r.method == method).collect();
-        let avg = |f: &dyn Fn(&Row) -> f64| sel.iter().map(|r| f(r)).sum::<f64>() / sel.len().max(1) as f64;
-        println!(
-            "  {:<24} {:>8.1}% {:>8.1}% {:>7.3}   {:>13.1}%",
-            method,
-            100.0 * avg(&|r| r.strict.within_005),
-            100.0 * avg(&|r| r.strict.within_010),
-            avg(&|r| r.strict.mean),
-            100.0 * avg(&|r| r.symmetric.within_005)
-        );
+    let staging = args.out.join(".staging");
+    std::fs::create_dir_all(&staging)?;
+    let mut labels = String::with_capacity(n * 6);
+    for v in 0..n {
+        let _ = writeln!(labels, "{v}");
     }
+    let t0 = Instant::now();
+    for (i, mesh) in fam.shapes.iter().enumerate().take(args.train) {
+        drop_file(&staging, &data.labeled(), &format!("creature{i}.labels"), |p| {
+            Ok(std::fs::write(p, &labels)?)
+        })?;
+        drop_file(&staging, &data.labeled(), &format!("creature{i}.off"), |p| Ok(write_mesh(p, mesh)?))?;
+    }
+    let train = args.train as u64;
+    wait_for("learning", train, deadline, &daemon, || {
+        newest_manifest(&data).map_or(0, |m| m.training_shapes.len() as u64)
+    })?;
+    let manifest = newest_manifest(&data).ok_or_else(|| anyhow!("no model manifest"))?;
     println!(
-        "\n  outputs in {}: model.sfm, reference.off, creatureN.off and creatureN.map.txt (one reference vertex per line)",
-        args.out.display()
+        "  3. dropped {} labelled shapes into labeled/ → model v{} ({} trees, reference `{}`) in {:.1} s",
+        args.train,
+        manifest.version,
+        manifest.n_trees,
+        manifest.reference,
+        t0.elapsed().as_secs_f64()
     );
+
+    let t0 = Instant::now();
+    let names: Vec<String> =
+        (args.train..args.train + args.test).map(|t| format!("scan-creature{t}")).collect();
+    for (name, mesh) in names.iter().zip(fam.shapes.iter().skip(args.train)) {
+        drop_file(&staging, &data.incoming(), &format!("{name}.off"), |p| Ok(write_mesh(p, mesh)?))?;
+    }
+    drop_file(&staging, &data.incoming(), "broken-scan.off", |p| {
+        Ok(std::fs::write(p, "OFF\n3 1 0\n0 0 0\n1 0 0\n")?)
+    })?;
+    let total = names.len() as u64 + 1;
+    wait_for("matching", total, deadline, &daemon, || {
+        let matched = names
+            .iter()
+            .filter(|s| data.matched().join(s).join(format!("{s}.report.json")).is_file())
+            .count();
+        matched as u64 + u64::from(data.rejected().join("broken-scan.error.json").is_file())
+    })?;
+    println!(
+        "  4. dropped {} scans and one broken file into incoming/ → {} matched, 1 rejected, in {:.1} s",
+        names.len(),
+        names.len(),
+        t0.elapsed().as_secs_f64()
+    );
+
+    shutdown.trigger();
+    let report = daemon.join().map_err(|_| anyhow!("the daemon panicked"))?.map_err(|e| anyhow!(e))?;
+    println!("  5. daemon stopped (as on Ctrl-C); per-actor metrics:");
+    for line in report.table().lines() {
+        println!("     {line}");
+    }
+
+    // Score the written maps against the ground truth (the family shares one vertex indexing).
+    let reference_file = data.training().join(format!("{}.off", manifest.reference));
+    let reference = Arc::new(read_mesh(&reference_file)?);
+    let cache = SpectrumCache::new(data.cache())?;
+    let spectrum = Arc::new(cache.get_or_compute(&reference, &SpectrumParams::new(100))?);
+    let prepared = PreparedShape::new(reference.clone(), spectrum, HeatParams::default())?;
+    let evaluated: Vec<usize> = (0..n).step_by(5).collect();
+    let fields = prepared.heat.distances_from_many(&evaluated)?;
+    let area = reference.surface_area();
+    println!(
+        "\n  accuracy of the daemon's maps (geodesic error / √area, {} points per scan):",
+        evaluated.len()
+    );
+    println!(
+        "  {:<18} {:>8} {:>8} {:>7} {:>14} {:>9}",
+        "scan", "≤ 0.05", "≤ 0.10", "mean", "sym. ≤ 0.05", "latency"
+    );
+    let mut pooled = (Vec::new(), Vec::new());
+    for name in &names {
+        let dir = data.matched().join(name);
+        let text = std::fs::read_to_string(dir.join(format!("{name}.map.txt")))?;
+        let map: Vec<usize> = text
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .map(|l| l.trim().parse::<usize>())
+            .collect::<std::result::Result<_, _>>()
+            .context("bad map file")?;
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{name}.report.json")))?)?;
+        let (strict, sym) = geodesic_errors(&map, &evaluated, fields.as_ref(), Some(&fam.symmetry), area)?;
+        let sym = sym.unwrap_or_default();
+        let (s, y) = (ErrorSummary::of(&strict), ErrorSummary::of(&sym));
+        println!(
+            "  {:<18} {:>7.1}% {:>7.1}% {:>7.3} {:>13.1}% {:>8.1}s",
+            name,
+            100.0 * s.within_005,
+            100.0 * s.within_010,
+            s.mean,
+            100.0 * y.within_005,
+            report["latency_s"].as_f64().unwrap_or(f64::NAN)
+        );
+        pooled.0.extend(strict);
+        pooled.1.extend(sym);
+    }
+    let (s, y) = (ErrorSummary::of(&pooled.0), ErrorSummary::of(&pooled.1));
+    println!(
+        "  {:<18} {:>7.1}% {:>7.1}% {:>7.3} {:>13.1}%",
+        "all",
+        100.0 * s.within_005,
+        100.0 * s.within_010,
+        s.mean,
+        100.0 * y.within_005
+    );
+    let _ = std::fs::remove_dir_all(&staging);
+    println!("\n  outputs in {}:", args.out.display());
+    println!("    matched/scan-creatureN/  map.txt (line i = reference vertex of scan vertex i), colored.ply, report.json, the scan");
+    println!(
+        "    matched/reference-{}.colored.ply  the reference, coloured like the scans",
+        manifest.reference
+    );
+    println!("    rejected/broken-scan.off + broken-scan.error.json  the broken file and why");
+    println!("    models/model-v{:06}.sfm  the model; training/ its labelled shapes", manifest.version);
+    println!("  run the daemon yourself: shapeforest watch --data-dir {}", args.out.display());
+    println!("  compare with the WKS baseline and the raw forest: shapeforest eval --synthetic");
     println!("  total {:.1} s", started.elapsed().as_secs_f64());
     Ok(())
 }

@@ -55,8 +55,13 @@ fn options(stop_after: Option<f64>) -> RunOptions {
 pub fn run(args: RunArgs) -> Result<()> {
     let spec = PipelineSpec::from_file(&args.pipeline)?;
     eprintln!("shapeforest: running pipeline `{}` ({})", spec.name, args.pipeline.display());
-    let report = run_spec(&spec, args.data_dir.as_deref(), options(args.stop_after), None, |_| Ok(()))
-        .map_err(|e| anyhow!(e))?;
+    let report = run_spec(&spec, args.data_dir.as_deref(), options(args.stop_after), None, |setup| {
+        for n in &setup.notes {
+            eprintln!("shapeforest: {n}");
+        }
+        Ok(())
+    })
+    .map_err(|e| anyhow!(e))?;
     println!("{}", report.table());
     println!(
         "pipeline `{}` finished in {:.1} s{}; model version {}",
@@ -90,6 +95,9 @@ pub fn watch(args: WatchArgs) -> Result<()> {
         data_dir.display()
     );
     let report = run_spec(&spec, Some(&data_dir), options(args.stop_after), None, |setup| {
+        for n in &setup.notes {
+            eprintln!("shapeforest: {n}");
+        }
         let nothing = setup.live.current().is_none()
             && std::fs::read_dir(setup.data.labeled()).map(|d| d.count()).unwrap_or(0) == 0
             && std::fs::read_dir(setup.data.training()).map(|d| d.count()).unwrap_or(0) == 0;

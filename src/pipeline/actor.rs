@@ -342,6 +342,11 @@ pub(crate) async fn run_stage<S: Stage>(
                     break;
                 };
                 stage = Some(s);
+                // Failures are reported under the actor's name.
+                let r = r.map_err(|mut f| {
+                    f.stage = name.clone();
+                    f
+                });
                 let dt = t0.elapsed();
                 metrics.record(dt, r.is_ok());
                 job.stage_seconds.push((name.clone(), dt.as_secs_f64()));

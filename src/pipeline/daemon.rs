@@ -159,7 +159,6 @@ pub fn run_spec(
     let setup = prepare(spec, data)?;
     for n in &setup.notes {
         tracing::info!("{n}");
-        eprintln!("shapeforest: {n}");
     }
     before_run(&setup)?;
     let ctx = PipelineContext::with_shutdown(shutdown.unwrap_or_default());

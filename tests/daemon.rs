@@ -1,0 +1,290 @@
+//! The watch-folder daemon, driven as a user drives it: the real binary on a temporary data
+//! folder, files dropped in, results read back, signals and a hard kill.
+
+use std::{
+    fmt::Write as _,
+    path::{Path, PathBuf},
+    process::{Child, Command, Stdio},
+    thread,
+    time::{Duration, Instant},
+};
+
+use shapeforest::{
+    mesh::write_mesh,
+    synth::{creature_family, CreatureParams, ShapeFamily},
+};
+
+const VERTICES: usize = 1500;
+const TIMEOUT: Duration = Duration::from_secs(240);
+
+fn family(n: usize) -> ShapeFamily {
+    creature_family(&CreatureParams { target_vertices: VERTICES, seed: 1, ..Default::default() }, n).unwrap()
+}
+
+struct Daemon {
+    child: Child,
+    log: PathBuf,
+}
+
+impl Daemon {
+    fn start(data: &Path, bootstrap: bool) -> Daemon {
+        let log = data.with_extension(format!("log{}", std::process::id()));
+        let out = std::fs::OpenOptions::new().create(true).append(true).open(&log).unwrap();
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_shapeforest"));
+        cmd.args(["watch", "--data-dir"]).arg(data).args(["--vertices", &VERTICES.to_string()]);
+        if bootstrap {
+            cmd.arg("--bootstrap-synthetic");
+        }
+        // A pipeline with a short settle time keeps the test quick.
+        let pipeline = data.with_extension("watch.toml");
+        let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/pipelines/watch.toml"))
+            .unwrap()
+            .replace("settle_ms = 500", "settle_ms = 200");
+        std::fs::write(&pipeline, text).unwrap();
+        cmd.arg("--pipeline").arg(&pipeline);
+        let child = cmd
+            .env("RUST_LOG", "info")
+            .stdout(out.try_clone().unwrap())
+            .stderr(out)
+            .stdin(Stdio::null())
+            .spawn()
+            .unwrap();
+        Daemon { child, log }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    fn assert_running(&mut self) {
+        if let Some(status) = self.child.try_wait().unwrap() {
+            panic!("daemon exited with {status}:\n{}", self.log());
+        }
+    }
+
+    /// SIGTERM, then wait for a clean exit.
+    fn stop(mut self) -> String {
+        let pid = self.child.id().to_string();
+        let ok = Command::new("kill").args(["-TERM", &pid]).status().unwrap().success();
+        assert!(ok, "kill -TERM failed");
+        let t0 = Instant::now();
+        loop {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                assert!(status.success(), "daemon exited with {status} after SIGTERM:\n{}", self.log());
+                return self.log();
+            }
+            assert!(t0.elapsed() < TIMEOUT, "daemon did not stop after SIGTERM:\n{}", self.log());
+            thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    fn kill(mut self) {
+        self.child.kill().unwrap();
+        self.child.wait().unwrap();
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn wait_until(daemon: &mut Daemon, what: &str, mut cond: impl FnMut() -> bool) {
+    let t0 = Instant::now();
+    while !cond() {
+        daemon.assert_running();
+        assert!(t0.elapsed() < TIMEOUT, "timed out waiting for {what}:\n{}", daemon.log());
+        thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// Writes a file aside and renames it into `dir`, as a careful copier does.
+fn drop_mesh(dir: &Path, name: &str, mesh: &shapeforest::mesh::Mesh) {
+    let tmp = dir.parent().unwrap().join(format!("staging-{name}"));
+    write_mesh(&tmp, mesh).unwrap();
+    std::fs::rename(&tmp, dir.join(name)).unwrap();
+}
+
+fn identity_labels(n: usize) -> String {
+    let mut s = String::new();
+    for v in 0..n {
+        let _ = writeln!(s, "{v}");
+    }
+    s
+}
+
+fn manifests(data: &Path) -> Vec<serde_json::Value> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(data.join("models"))
+        .map(|d| d.filter_map(|e| e.ok().map(|e| e.path())).collect())
+        .unwrap_or_default();
+    v.retain(|p| p.extension().is_some_and(|e| e == "json"));
+    v.sort();
+    v.iter().filter_map(|p| serde_json::from_str(&std::fs::read_to_string(p).ok()?).ok()).collect()
+}
+
+fn newest_training_count(data: &Path) -> usize {
+    manifests(data).last().and_then(|m| m["training_shapes"].as_array().map(Vec::len)).unwrap_or(0)
+}
+
+fn result_dirs(data: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(data.join("matched"))
+        .map(|d| {
+            d.filter_map(|e| e.ok())
+                .filter(|e| e.path().is_dir())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .map(|d| d.filter_map(|e| e.ok()).map(|e| e.file_name().to_string_lossy().into_owned()).collect())
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+fn read_map(dir: &Path, name: &str) -> Vec<usize> {
+    std::fs::read_to_string(dir.join(format!("{name}.map.txt")))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.trim().parse().unwrap())
+        .collect()
+}
+
+#[test]
+fn daemon_matches_scans_rejects_a_broken_file_and_stops_cleanly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let mut d = Daemon::start(&data, true);
+    let incoming = data.join("incoming");
+    wait_until(&mut d, "the folders", || incoming.is_dir());
+    std::fs::write(incoming.join("broken.off"), "OFF\n3 1 0\n0 0 0\n").unwrap();
+    std::fs::write(incoming.join("notes.txt"), "not a mesh").unwrap();
+    let rejected = data.join("rejected");
+    wait_until(&mut d, "two results and two rejections", || {
+        result_dirs(&data).len() == 2
+            && rejected.join("broken.error.json").is_file()
+            && rejected.join("notes.error.json").is_file()
+    });
+    d.assert_running();
+    // Each result: a full map into the reference, the report, the coloured mesh, the scan.
+    let fam = family(8);
+    let n = fam.template.n_vertices();
+    for name in ["scan-creature6", "scan-creature7"] {
+        let dir = data.join("matched").join(name);
+        let map = read_map(&dir, name);
+        assert_eq!(map.len(), n);
+        assert!(map.iter().all(|&r| r < n));
+        // The synthetic family shares one vertex indexing: most vertices land near themselves.
+        let close = map
+            .iter()
+            .enumerate()
+            .filter(|&(v, &r)| {
+                let (a, b) = (fam.shapes[0].vertices[v], fam.shapes[0].vertices[r]);
+                ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt() < 0.1
+            })
+            .count();
+        assert!(
+            close as f64 > 0.8 * n as f64,
+            "{name}: only {close} of {n} vertices matched near their truth"
+        );
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{name}.report.json"))).unwrap())
+                .unwrap();
+        assert_eq!(report["vertices"].as_u64(), Some(n as u64));
+        assert!(report["latency_s"].as_f64().unwrap() > 0.0);
+        assert!(dir.join(format!("{name}.colored.ply")).is_file());
+        assert!(dir.join(format!("{name}.off")).is_file(), "the scan moves in beside its result");
+    }
+    let broken: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rejected.join("broken.error.json")).unwrap()).unwrap();
+    assert!(broken["error"].as_str().unwrap().contains("broken.off"), "{broken}");
+    assert!(rejected.join("broken.off").is_file() && rejected.join("notes.txt").is_file());
+    assert!(files_in(&incoming).is_empty());
+    let log = d.stop();
+    assert!(log.contains("per-actor") || log.contains("actor"), "summary printed:\n{log}");
+}
+
+#[test]
+fn a_labelled_shape_grows_the_model_while_scans_are_matched() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let mut d = Daemon::start(&data, true);
+    wait_until(&mut d, "the first model with 6 shapes", || newest_training_count(&data) == 6);
+    let first_version = manifests(&data).last().unwrap()["version"].as_u64().unwrap();
+    let fam = family(11);
+    let n = fam.template.n_vertices();
+    // A new labelled shape and two scans at once: the update runs beside the matching.
+    std::fs::write(data.join("labeled").join("creature10.labels"), identity_labels(n)).unwrap();
+    drop_mesh(&data.join("labeled"), "creature10.off", &fam.shapes[10]);
+    drop_mesh(&data.join("incoming"), "late-a.off", &fam.shapes[8]);
+    drop_mesh(&data.join("incoming"), "late-b.off", &fam.shapes[9]);
+    wait_until(&mut d, "a model with 7 shapes and 4 results", || {
+        newest_training_count(&data) == 7 && result_dirs(&data).len() == 4
+    });
+    let newest = manifests(&data).last().unwrap().clone();
+    assert!(newest["version"].as_u64().unwrap() > first_version);
+    assert!(newest["training_shapes"].as_array().unwrap().iter().any(|s| s == "creature10"));
+    assert!(data.join("training").join("creature10.off").is_file());
+    for name in ["late-a", "late-b"] {
+        let report: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(data.join("matched").join(name).join(format!("{name}.report.json")))
+                .unwrap(),
+        )
+        .unwrap();
+        assert!(report["model_version"].as_u64().unwrap() >= first_version);
+    }
+    d.stop();
+    // After a restart the newest model is the one in use.
+    let mut d = Daemon::start(&data, false);
+    drop_mesh(&data.join("incoming"), "after-restart.off", &fam.shapes[7]);
+    wait_until(&mut d, "a result after restart", || {
+        result_dirs(&data).contains(&"after-restart".to_string())
+    });
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(data.join("matched/after-restart/after-restart.report.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(report["model_version"], newest["version"]);
+    d.stop();
+}
+
+#[test]
+fn a_killed_daemon_restarts_without_losing_or_repeating_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let mut d = Daemon::start(&data, true);
+    wait_until(&mut d, "the bootstrap results", || result_dirs(&data).len() == 2);
+    d.stop();
+    let fam = family(12);
+    let names: Vec<String> = (0..4).map(|i| format!("batch{i}")).collect();
+    for (i, name) in names.iter().enumerate() {
+        drop_mesh(&data.join("incoming"), &format!("{name}.off"), &fam.shapes[8 + i]);
+    }
+    // Start, and kill hard as soon as a scan is in flight.
+    let mut d = Daemon::start(&data, false);
+    let inflight = data.join(".inflight").join("scans");
+    wait_until(&mut d, "a claimed scan", || !files_in(&inflight).is_empty());
+    d.kill();
+    assert!(result_dirs(&data).len() < 6, "killed before finishing the batch");
+    let mut d = Daemon::start(&data, false);
+    wait_until(&mut d, "all scans matched", || result_dirs(&data).len() == 6);
+    thread::sleep(Duration::from_millis(500));
+    let dirs = result_dirs(&data);
+    for name in &names {
+        assert_eq!(dirs.iter().filter(|d| *d == name).count(), 1, "{name} matched once: {dirs:?}");
+    }
+    assert_eq!(dirs.len(), 6, "no duplicates: {dirs:?}");
+    assert!(files_in(&data.join("incoming")).is_empty());
+    assert!(files_in(&inflight).is_empty());
+    assert!(files_in(&data.join("rejected")).is_empty(), "nothing rejected");
+    assert!(!files_in(&data.join("matched")).iter().any(|f| f.starts_with(".partial")));
+    d.stop();
+}
