@@ -332,6 +332,14 @@ impl PipelineSpec {
             problems.push("[settings]: channel_capacity must be at least 1".into());
         }
         let mut stages = Vec::new();
+        let mut seen_names = HashSet::new();
+        for t in &raw.stage {
+            if let Some(toml::Value::String(n)) = t.get("name") {
+                if !seen_names.insert(n.clone()) {
+                    problems.push(format!("stage `{n}`: the name is used twice"));
+                }
+            }
+        }
         for (i, mut t) in raw.stage.into_iter().enumerate() {
             let mut take_str = |key: &str| -> Result<Option<String>, String> {
                 match t.remove(key) {
@@ -390,9 +398,7 @@ impl PipelineSpec {
 fn validate_graph(stages: &[StageSpec], problems: &mut Vec<String>) {
     let mut by_name: HashMap<&str, &StageSpec> = HashMap::new();
     for s in stages {
-        if by_name.insert(&s.name, s).is_some() {
-            problems.push(format!("stage `{}`: the name is used twice", s.name));
-        }
+        by_name.insert(&s.name, s);
     }
     if stages.is_empty() {
         problems.push("no stages: add [[stage]] tables".into());

@@ -149,7 +149,12 @@ impl DataDir {
         if matched.is_dir() {
             for entry in read_dir_sorted(&matched)? {
                 let name = file_name(&entry);
-                let Some(final_name) = name.strip_prefix(".partial-") else { continue };
+                let Some(partial) = name.strip_prefix(".partial-") else { continue };
+                // `.partial-NAME-JOB`: the sink appends the job number.
+                let final_name = match partial.rsplit_once('-') {
+                    Some((n, id)) if !n.is_empty() && id.bytes().all(|b| b.is_ascii_digit()) => n,
+                    _ => partial,
+                };
                 let input = fs::read_to_string(entry.join(".input")).ok().map(|s| s.trim().to_string());
                 match input.filter(|i| !i.is_empty() && entry.join(i).is_file()) {
                     Some(_) => {

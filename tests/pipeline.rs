@@ -1,0 +1,281 @@
+//! The pipeline layer in-process: pipeline files and their validation, actors that survive
+//! bad jobs, back-pressure, the live model, crash recovery of the data folder, and the
+//! evaluation pipeline end to end on synthetic data.
+
+use std::{
+    path::Path,
+    sync::{
+        atomic::{AtomicUsize, Ordering},
+        Arc, Mutex,
+    },
+    thread,
+    time::Duration,
+};
+
+use shapeforest::pipeline::{
+    daemon::run_spec, DataDir, Emitter, Envelope, Failure, FailureKind, Job, LiveModel, NoModel, Pipeline,
+    PipelineSpec, RunOptions, Shutdown, Sink, Source, Stage,
+};
+
+#[test]
+fn shipped_pipelines_are_valid() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines");
+    let mut names = Vec::new();
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let p = entry.unwrap().path();
+        if p.extension().is_some_and(|e| e == "toml") {
+            let spec = PipelineSpec::from_file(&p).unwrap_or_else(|e| panic!("{e}"));
+            names.push(spec.name);
+        }
+    }
+    names.sort();
+    assert_eq!(names, ["eval", "match", "train", "watch"]);
+    let watch = PipelineSpec::from_file(&dir.join("watch.toml")).unwrap();
+    assert!(watch.is_daemon());
+}
+
+#[test]
+fn a_bad_pipeline_file_lists_every_problem_by_stage_and_key() {
+    let text = r#"
+name = "broken"
+[settings]
+channel_capacity = 2
+colour = "blue"
+
+[[stage]]
+name = "in"
+type = "folder"
+folder = "incoming"
+
+[[stage]]
+name = "read"
+type = "ingest"
+input = "in"
+
+[[stage]]
+name = "spectra"
+type = "spectral"
+input = "read"
+kk = 50
+
+[[stage]]
+name = "forest"
+type = "forest"
+input = "read"
+
+[[stage]]
+name = "match"
+type = "matcher"
+input = "nowhere"
+top_k = 0
+
+[[stage]]
+name = "read"
+type = "teleport"
+input = "in"
+"#;
+    let err = PipelineSpec::from_toml(text, "broken.toml").unwrap_err();
+    let msg = err.to_string();
+    for needle in [
+        "broken.toml",
+        "[settings]: unknown field `colour`",
+        "stage `spectra` (spectral): unknown field `kk`",
+        "stage `forest`: takes descriptor but `read` emits shape",
+        "stage `match` (matcher): top_k = 0",
+        "unknown stage type `teleport`",
+        "stage `read`: the name is used twice",
+    ] {
+        assert!(msg.contains(needle), "missing `{needle}` in:\n{msg}");
+    }
+    // One problem per line, all reported at once.
+    assert!(err.problems.len() >= 6, "{msg}");
+}
+
+#[test]
+fn a_pipeline_without_a_source_or_with_a_dangling_output_is_refused() {
+    let text = r#"
+name = "x"
+[[stage]]
+name = "a"
+type = "spectral"
+input = "b"
+[[stage]]
+name = "b"
+type = "spectral"
+input = "a"
+"#;
+    let msg = PipelineSpec::from_toml(text, "x.toml").unwrap_err().to_string();
+    assert!(msg.contains("no source stage"), "{msg}");
+    assert!(msg.contains("takes shape but `b` emits spectrum"), "{msg}");
+    let text = r#"
+name = "y"
+[[stage]]
+name = "in"
+type = "folder"
+folder = "x"
+[[stage]]
+name = "read"
+type = "ingest"
+input = "in"
+"#;
+    let msg = PipelineSpec::from_toml(text, "y.toml").unwrap_err().to_string();
+    assert!(msg.contains("stage `read`: its output (shape) goes nowhere"), "{msg}");
+}
+
+/// Emits `n` numbered jobs, counting how many exist (emitted, not yet consumed).
+struct Numbers {
+    n: usize,
+    alive: Arc<AtomicUsize>,
+    peak: Arc<AtomicUsize>,
+}
+
+impl Source for Numbers {
+    type Out = usize;
+    fn run(&mut self, out: &Emitter<usize>) -> Result<(), String> {
+        for i in 0..self.n {
+            let now = self.alive.fetch_add(1, Ordering::SeqCst) + 1;
+            self.peak.fetch_max(now, Ordering::SeqCst);
+            let job = Job::generated(out.next_job_id(), format!("n{i}"));
+            if !out.emit(Envelope { job, body: Ok(i) }) {
+                break;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Panics on multiples of 3, otherwise squares (slowly).
+struct Fragile;
+
+impl Stage for Fragile {
+    type In = usize;
+    type Out = usize;
+    fn process(&mut self, _job: &mut Job, i: usize) -> Result<usize, Failure> {
+        thread::sleep(Duration::from_millis(5));
+        if i % 3 == 0 {
+            panic!("cannot square {i}");
+        }
+        Ok(i * i)
+    }
+}
+
+struct Collect {
+    alive: Arc<AtomicUsize>,
+    got: Arc<Mutex<Vec<Result<usize, Failure>>>>,
+}
+
+impl Sink for Collect {
+    type In = usize;
+    fn consume(&mut self, _job: Job, body: Result<usize, Failure>) -> Result<(), String> {
+        self.alive.fetch_sub(1, Ordering::SeqCst);
+        self.got.lock().unwrap().push(body);
+        Ok(())
+    }
+}
+
+#[test]
+fn a_panicking_job_fails_alone_and_bounded_channels_hold_back_the_source() {
+    let tmp = tempfile::tempdir().unwrap();
+    let alive = Arc::new(AtomicUsize::new(0));
+    let peak = Arc::new(AtomicUsize::new(0));
+    let got = Arc::new(Mutex::new(Vec::new()));
+    let mut p = Pipeline::new(DataDir::new(tmp.path()), Arc::new(LiveModel::new())).with_capacity(1);
+    let nums = p.source("numbers", Numbers { n: 60, alive: alive.clone(), peak: peak.clone() });
+    let squares = p.stage("square", nums, Fragile);
+    p.sink("collect", squares, Collect { alive, got: got.clone() });
+    let report = p.run(RunOptions::default()).unwrap();
+    let got = got.lock().unwrap();
+    assert_eq!(got.len(), 60, "every job reaches the sink");
+    let failures: Vec<&Failure> = got.iter().filter_map(|r| r.as_ref().err()).collect();
+    assert_eq!(failures.len(), 20);
+    assert!(failures
+        .iter()
+        .all(|f| f.kind == FailureKind::Internal && f.message.contains("panic: cannot square")));
+    assert!(failures.iter().all(|f| f.stage == "square"));
+    assert_eq!(got.iter().filter(|r| r.is_ok()).count(), 40);
+    // Capacity 1 on two edges, one job in each actor: never more than a handful alive.
+    assert!(peak.load(Ordering::SeqCst) <= 6, "peak {} jobs in memory", peak.load(Ordering::SeqCst));
+    let square = report.stages.iter().find(|s| s.name == "square").unwrap();
+    assert_eq!((square.jobs, square.failed), (60, 20));
+    assert!(!report.interrupted);
+}
+
+#[test]
+fn the_live_model_wait_ends_on_shutdown_or_close() {
+    let live = Arc::new(LiveModel::new());
+    let sd = Shutdown::new();
+    let (l, s) = (live.clone(), sd.clone());
+    let waiter = thread::spawn(move || l.wait(&s).err());
+    thread::sleep(Duration::from_millis(150));
+    assert!(!waiter.is_finished(), "waits while there is no model");
+    sd.trigger();
+    assert_eq!(waiter.join().unwrap(), Some(NoModel::ShuttingDown));
+    let l = live.clone();
+    let waiter = thread::spawn(move || l.wait(&Shutdown::new()).err());
+    live.close("no labelled shape was accepted");
+    assert_eq!(waiter.join().unwrap(), Some(NoModel::Closed("no labelled shape was accepted".into())));
+    assert_eq!(live.version(), 0);
+}
+
+#[test]
+fn recovery_commits_finished_results_and_requeues_claimed_inputs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = DataDir::new(tmp.path());
+    data.create().unwrap();
+    // A result whose input had moved in: only the rename was missing.
+    let done = data.matched().join(".partial-a-3");
+    std::fs::create_dir_all(&done).unwrap();
+    std::fs::write(done.join("a.map.txt"), "0\n").unwrap();
+    std::fs::write(done.join(".input"), "a.off").unwrap();
+    std::fs::write(done.join("a.off"), "OFF").unwrap();
+    // A result written before its input moved: discarded, the input is re-matched.
+    let half = data.matched().join(".partial-b-4");
+    std::fs::create_dir_all(&half).unwrap();
+    std::fs::write(half.join("b.map.txt"), "0\n").unwrap();
+    std::fs::write(data.inflight(shapeforest::pipeline::InputKind::Scan).join("b.off"), "OFF").unwrap();
+    std::fs::write(data.inflight(shapeforest::pipeline::InputKind::Labeled).join("c.off"), "OFF").unwrap();
+    std::fs::write(data.inflight(shapeforest::pipeline::InputKind::Labeled).join("c.labels"), "0").unwrap();
+    let rec = data.recover().unwrap();
+    assert_eq!(rec.committed, vec![data.matched().join("a")]);
+    assert!(data.matched().join("a").join("a.off").is_file());
+    assert_eq!(rec.discarded.len(), 1);
+    assert!(!half.exists());
+    assert!(data.incoming().join("b.off").is_file());
+    assert!(data.labeled().join("c.off").is_file() && data.labeled().join("c.labels").is_file());
+    assert_eq!(rec.requeued.len(), 3);
+    // Idempotent.
+    assert_eq!(data.recover().unwrap(), Default::default());
+}
+
+#[test]
+fn the_evaluation_pipeline_scores_held_out_synthetic_shapes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/eval.toml"))
+        .unwrap()
+        .replace("vertices = 5000", "vertices = 2000");
+    let spec = PipelineSpec::from_toml(&text, "eval.toml").unwrap();
+    let report = run_spec(&spec, Some(tmp.path()), RunOptions::default(), None, |_| Ok(())).unwrap();
+    assert_eq!(report.model_version, 1);
+    let csv = std::fs::read_to_string(tmp.path().join("eval/eval.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 4, "2 shapes × 2 methods:\n{csv}");
+    for r in rows.iter().filter(|r| r[1] == "forest + regulariser") {
+        let within: f64 = r[3].parse().unwrap();
+        assert!(within > 0.85, "{}: {within} within 0.05", r[0]);
+    }
+    assert!(tmp.path().join("eval/curves.svg").is_file());
+    // No model → a clear error before anything runs.
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/match.toml")).unwrap();
+    let spec = PipelineSpec::from_toml(&text, "match.toml").unwrap();
+    let empty = tempfile::tempdir().unwrap();
+    let err = run_spec(&spec, Some(empty.path()), RunOptions::default(), None, |_| Ok(())).unwrap_err();
+    assert!(err.contains("no model in") && err.contains("train.toml"), "{err}");
+}
+
+#[test]
+fn failures_are_values_with_a_kind() {
+    let f = Failure::bad_input("ingest", "x.off: line 3: bad vertex");
+    assert_eq!(f.to_string(), "stage `ingest`: x.off: line 3: bad vertex");
+    assert_eq!(Failure::interrupted("fmap").kind, FailureKind::Interrupted);
+}
