@@ -170,12 +170,15 @@ pub fn label_table(labels: &[Option<u32>], n_labels: usize) -> Result<Vec<usize>
 }
 
 /// A stored training shape read back: mesh, labels, spectrum.
+type StoredParts = (Arc<Mesh>, Vec<Option<u32>>, Spectrum);
+
+/// Reads a stored training shape back.
 fn load_stored(
     dir: &Path,
     name: &str,
     params: &SpectrumParams,
     cache: Option<&SpectrumCache>,
-) -> Result<(Arc<Mesh>, Vec<Option<u32>>, Spectrum), String> {
+) -> Result<StoredParts, String> {
     let stored = stored_shapes(dir)
         .into_iter()
         .find(|s| s.name == name)
@@ -389,7 +392,7 @@ impl TrainerSink {
         }
         let mut shapes: Vec<TrainingShape> = self.known.values().cloned().collect();
         shapes.extend(accepted.iter().map(|a| a.2.clone()));
-        shapes.sort_by(|a, b| super::source::natural_key(&a.name).cmp(&super::source::natural_key(&b.name)));
+        shapes.sort_by_key(|a| super::source::natural_key(&a.name));
         let set = TrainingSet::new(shapes, n_labels).map_err(|e| e.to_string())?;
         let forest = self
             .params
