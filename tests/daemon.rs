@@ -167,9 +167,26 @@ fn daemon_matches_scans_rejects_a_broken_file_and_stops_cleanly() {
     wait_until(&mut d, "the folders", || incoming.is_dir());
     std::fs::write(incoming.join("broken.off"), "OFF\n3 1 0\n0 0 0\n").unwrap();
     std::fs::write(incoming.join("notes.txt"), "not a mesh").unwrap();
+    // A large copy in progress: written in pieces, with pauses shorter than the settle time.
+    // Read half-way it would be rejected as truncated.
+    let slow = {
+        let fam = family(9);
+        let tmp = data.with_extension("slow.off");
+        write_mesh(&tmp, &fam.shapes[8]).unwrap();
+        std::fs::read(&tmp).unwrap()
+    };
+    {
+        use std::io::Write;
+        let mut f = std::fs::File::create(incoming.join("slow.off")).unwrap();
+        for chunk in slow.chunks(slow.len() / 5 + 1) {
+            f.write_all(chunk).unwrap();
+            f.flush().unwrap();
+            thread::sleep(Duration::from_millis(120));
+        }
+    }
     let rejected = data.join("rejected");
-    wait_until(&mut d, "two results and two rejections", || {
-        result_dirs(&data).len() == 2
+    wait_until(&mut d, "three results and two rejections", || {
+        result_dirs(&data).len() == 3
             && rejected.join("broken.error.json").is_file()
             && rejected.join("notes.error.json").is_file()
     });
@@ -207,6 +224,8 @@ fn daemon_matches_scans_rejects_a_broken_file_and_stops_cleanly() {
         serde_json::from_str(&std::fs::read_to_string(rejected.join("broken.error.json")).unwrap()).unwrap();
     assert!(broken["error"].as_str().unwrap().contains("broken.off"), "{broken}");
     assert!(rejected.join("broken.off").is_file() && rejected.join("notes.txt").is_file());
+    assert!(!rejected.join("slow.error.json").exists(), "a file being copied is not read half-way");
+    assert_eq!(read_map(&data.join("matched/slow"), "slow").len(), n);
     assert!(files_in(&incoming).is_empty());
     let log = d.stop();
     assert!(log.contains("per-actor") || log.contains("actor"), "summary printed:\n{log}");

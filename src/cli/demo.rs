@@ -145,7 +145,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let shutdown = Shutdown::new();
     let daemon = {
         let (spec, out, sd) = (spec.clone(), args.out.clone(), shutdown.clone());
-        let options = RunOptions { handle_signals: true, stop_after: None };
+        let options = RunOptions { handle_signals: true, ..Default::default() };
         thread::spawn(move || run_spec(&spec, Some(&out), options, Some(sd), |_| Ok(())))
     };
     let deadline = Instant::now() + Duration::from_secs(args.timeout);

@@ -48,6 +48,7 @@ fn options(stop_after: Option<f64>) -> RunOptions {
     RunOptions {
         handle_signals: true,
         stop_after: stop_after.map(|s| std::time::Duration::from_secs_f64(s.max(0.0))),
+        metrics_every: Some(std::time::Duration::from_secs(60)),
     }
 }
 
@@ -95,13 +96,16 @@ pub fn watch(args: WatchArgs) -> Result<()> {
         data_dir.display()
     );
     let report = run_spec(&spec, Some(&data_dir), options(args.stop_after), None, |setup| {
-        for n in &setup.notes {
-            eprintln!("shapeforest: {n}");
-        }
         let nothing = setup.live.current().is_none()
             && std::fs::read_dir(setup.data.labeled()).map(|d| d.count()).unwrap_or(0) == 0
             && std::fs::read_dir(setup.data.training()).map(|d| d.count()).unwrap_or(0) == 0;
-        if args.bootstrap_synthetic && nothing {
+        let bootstrap = args.bootstrap_synthetic && nothing;
+        for n in &setup.notes {
+            if !(bootstrap && n.starts_with("no model")) {
+                eprintln!("shapeforest: {n}");
+            }
+        }
+        if bootstrap {
             let n = bootstrap_synthetic(&setup.data, args.vertices, 6, 2, 1)?;
             eprintln!(
                 "shapeforest: bootstrap: 6 labelled synthetic creatures ({n} vertices) in labeled/, 2 scans in incoming/"

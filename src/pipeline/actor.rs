@@ -96,6 +96,13 @@ impl StageMetrics {
         self.max_ns.fetch_max(ns, Ordering::Relaxed);
     }
 
+    /// Adds work done outside a job (a trainer's update while idle).
+    fn add_busy(&self, elapsed: Duration) {
+        let ns = elapsed.as_nanos() as u64;
+        self.busy_ns.fetch_add(ns, Ordering::Relaxed);
+        self.max_ns.fetch_max(ns, Ordering::Relaxed);
+    }
+
     /// A snapshot.
     pub fn summary(&self) -> StageSummary {
         let jobs = self.jobs.load(Ordering::Relaxed);
@@ -397,6 +404,7 @@ pub(crate) async fn run_sink<S: Sink>(
                 Err(_) => {
                     // Nothing arrived for a while: let the sink act on what it holds.
                     let Some(mut s) = sink.take() else { break };
+                    let t0 = Instant::now();
                     let joined = tokio::task::spawn_blocking(move || {
                         let r = std::panic::catch_unwind(AssertUnwindSafe(|| s.idle()))
                             .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))));
@@ -404,6 +412,9 @@ pub(crate) async fn run_sink<S: Sink>(
                     })
                     .await;
                     let Ok((s, r)) = joined else { break };
+                    if t0.elapsed() > Duration::from_millis(5) {
+                        metrics.add_busy(t0.elapsed());
+                    }
                     sink = Some(s);
                     if let Err(e) = r {
                         tracing::error!(sink = %name, "{e}");

@@ -54,6 +54,8 @@ pub struct RunOptions {
     pub handle_signals: bool,
     /// Shut down after this long (for benchmarks and tests).
     pub stop_after: Option<Duration>,
+    /// Log every actor's metrics at this interval (`tracing` info; the daemon uses a minute).
+    pub metrics_every: Option<Duration>,
 }
 
 /// What a finished pipeline did.
@@ -163,6 +165,26 @@ impl Pipeline {
         rt.block_on(async move {
             let ctx = run_ctx;
             let handles: Vec<_> = self.spawns.into_iter().map(|s| s()).collect();
+            let reporter = options.metrics_every.map(|every| {
+                let ctx = ctx.clone();
+                tokio::spawn(async move {
+                    let mut tick = tokio::time::interval(every);
+                    tick.tick().await;
+                    loop {
+                        tick.tick().await;
+                        for s in ctx.summaries() {
+                            tracing::info!(
+                                actor = %s.name,
+                                jobs = s.jobs,
+                                failed = s.failed,
+                                mean_s = s.mean_s,
+                                max_s = s.max_s,
+                                "metrics"
+                            );
+                        }
+                    }
+                })
+            });
             let watcher = {
                 let shutdown = ctx.shutdown.clone();
                 tokio::spawn(async move {
@@ -193,6 +215,9 @@ impl Pipeline {
                 let _ = h.await;
             }
             watcher.abort();
+            if let Some(r) = reporter {
+                r.abort();
+            }
         });
         rt.shutdown_timeout(Duration::from_secs(1));
         Ok(PipelineReport {
