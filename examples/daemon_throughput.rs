@@ -169,11 +169,24 @@ fn main() -> Result<()> {
     // Latencies from the reports (claim → commit) and from the files (drop → result).
     let mut claim_latency = Vec::new();
     let mut drop_latency = Vec::new();
+    let mut work = Vec::new();
+    let mut per_stage: Vec<(String, f64)> = Vec::new();
     for e in std::fs::read_dir(&matched)?.filter_map(|e| e.ok()).filter(|e| e.path().is_dir()) {
         let name = e.file_name().to_string_lossy().into_owned();
         let report = e.path().join(format!("{name}.report.json"));
         let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&report)?)?;
         claim_latency.push(v["latency_s"].as_f64().unwrap_or(f64::NAN));
+        if let Some(stages) = v["stage_seconds"].as_object() {
+            work.push(stages.values().filter_map(|t| t.as_f64()).sum::<f64>());
+            for (k, t) in stages {
+                if let Some(t) = t.as_f64() {
+                    match per_stage.iter_mut().find(|(n, _)| n == k) {
+                        Some((_, acc)) => *acc += t,
+                        None => per_stage.push((k.clone(), t)),
+                    }
+                }
+            }
+        }
         let done = std::fs::metadata(&report)?.modified()?;
         drop_latency.push(done.duration_since(dropped).map_or(0.0, |d| d.as_secs_f64()));
     }
@@ -193,6 +206,11 @@ fn main() -> Result<()> {
     println!(
         "  latency drop → result (includes the queue): mean {dm:.1} s, median {dmed:.1} s, max {dmax:.1} s"
     );
+    let (wm, wmed, wmax) = stats(&mut work);
+    println!("  work per scan (sum of its stage times): mean {wm:.2} s, median {wmed:.2} s, max {wmax:.2} s");
+    let per: Vec<String> =
+        per_stage.iter().map(|(k, t)| format!("{k} {:.2} s", t / n_scans as f64)).collect();
+    println!("  mean per stage: {}", per.join(", "));
     println!(
         "  daemon memory with {n_scans} scans queued: RSS before the burst {:.0} MB, peak while matching {:.0} MB (peak during training {:.0} MB)",
         base as f64 / 1024.0,
