@@ -207,9 +207,11 @@ pub struct SparseMatches {
     pub samples: Vec<usize>,
     /// Reference vertices that are candidates of some sample.
     pub ref_points: Vec<usize>,
-    /// Heat-method distances from each sample (`n_test × samples`, mesh units).
+    /// Distances (divided by √area) from the test vertex of each match (`n_test × matches`):
+    /// the distance maps `d_p` of eq. 11.19. Only the matched columns are kept, so a job
+    /// waiting for the dense step holds little.
     pub test_fields: Mat<f64>,
-    /// Heat-method distances from each candidate reference point (`n_ref × ref_points`).
+    /// Distances (divided by √area) from the reference vertex of each match (`n_ref × matches`).
     pub ref_fields: Mat<f64>,
     /// The game's equilibrium: indices into `samples` and `ref_points`, with weights.
     pub game: crate::matching::GameMatching,
@@ -366,11 +368,18 @@ pub fn sparse_matches(
         .iter()
         .map(|m| VertexMatch { test: samples[m.test], reference: ref_points[m.reference], weight: m.weight })
         .collect();
+    let (ts, rs) = (test.sqrt_area(), reference.sqrt_area());
+    let kept_test = Mat::from_fn(test.mesh.n_vertices(), game.matches.len(), |v, j| {
+        test_fields[(v, game.matches[j].test)] / ts
+    });
+    let kept_ref = Mat::from_fn(reference.mesh.n_vertices(), game.matches.len(), |v, j| {
+        ref_fields[(v, game.matches[j].reference)] / rs
+    });
     Ok(SparseMatches {
         samples,
         ref_points,
-        test_fields,
-        ref_fields,
+        test_fields: kept_test,
+        ref_fields: kept_ref,
         game,
         matches,
         orientation_score,
@@ -398,12 +407,10 @@ pub fn dense_map(
     let t0 = Instant::now();
     let (kt, kr) = (params.fmap.k_test.min(test.spectrum.k()), params.fmap.k_ref.min(reference.spectrum.k()));
     let fmap_predicted = fmap::pullback_fmap(&test.spectrum, &reference.spectrum, kt, kr, &posterior)?;
-    let s = game.matches.len();
-    let a_fields = Mat::from_fn(test.mesh.n_vertices(), s, |v, j| {
-        test_fields[(v, game.matches[j].test)] / test.sqrt_area()
-    });
-    let b_fields =
-        Mat::from_fn(n_ref, s, |v, j| ref_fields[(v, game.matches[j].reference)] / reference.sqrt_area());
+    let (a_fields, b_fields) = (test_fields, ref_fields);
+    if a_fields.ncols() != game.matches.len() || b_fields.nrows() != n_ref {
+        return Err(fmap::FmapError::SizeMismatch("sparse matches of another shape pair".into()).into());
+    }
     let a = fmap::spectral_coefficients(&test.spectrum, kt, a_fields.as_ref())?;
     let b = fmap::spectral_coefficients(&reference.spectrum, kr, b_fields.as_ref())?;
     let weights: Vec<f64> = game.matches.iter().map(|m| m.weight).collect();
@@ -424,7 +431,7 @@ pub fn dense_map(
     let fmap_map = fmap::point_to_point(&test.spectrum, &reference.spectrum, c.as_ref())?;
     let spectral_map =
         fmap::point_to_point_restricted(&test.spectrum, &reference.spectrum, c.as_ref(), &posterior)?;
-    let map = anchor_consistent_map(&a_fields, &b_fields, &weights, &posterior, &fmap_map);
+    let map = anchor_consistent_map(a_fields, b_fields, &weights, &posterior, &fmap_map);
     timings.point_map_s = t0.elapsed().as_secs_f64();
     let refined_map = match params.zoomout {
         Some(z) if kt == kr => {
