@@ -453,11 +453,13 @@ pub(crate) async fn run_sink<S: Sink>(
         }
     }
     if let Some(mut s) = sink {
+        let t0 = Instant::now();
         let r = tokio::task::spawn_blocking(move || {
             std::panic::catch_unwind(AssertUnwindSafe(|| s.finish()))
                 .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))))
         })
         .await;
+        metrics.add_busy(t0.elapsed());
         if let Ok(Err(e)) = r {
             tracing::error!(sink = %name, "finish failed: {e}");
         }
