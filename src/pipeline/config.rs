@@ -332,6 +332,7 @@ impl PipelineSpec {
             problems.push("[settings]: channel_capacity must be at least 1".into());
         }
         let mut stages = Vec::new();
+        let mut nodes = Vec::new();
         let mut seen_names = HashSet::new();
         for t in &raw.stage {
             if let Some(toml::Value::String(n)) = t.get("name") {
@@ -371,12 +372,13 @@ impl PipelineSpec {
                     continue;
                 }
             };
+            nodes.push(Node { name: name.clone(), input: input.clone(), ports: ports_of(&kind) });
             match StageKind::parse(&kind, t) {
                 Ok(k) => stages.push(StageSpec { name, input, kind: k }),
                 Err(e) => problems.push(format!("{label} ({kind}): {e}")),
             }
         }
-        validate_graph(&stages, &mut problems);
+        validate_graph(&nodes, &mut problems);
         if problems.is_empty() {
             Ok(Self { name: raw.name, description: raw.description, settings, stages })
         } else {
@@ -395,10 +397,35 @@ impl PipelineSpec {
     }
 }
 
-fn validate_graph(stages: &[StageSpec], problems: &mut Vec<String>) {
-    let mut by_name: HashMap<&str, &StageSpec> = HashMap::new();
+/// What graph validation needs of a stage; `ports` is `None` for an unknown type.
+struct Node {
+    name: String,
+    input: Option<String>,
+    ports: Option<(Option<PortType>, Option<PortType>)>,
+}
+
+/// The ports of a stage type, by name.
+fn ports_of(kind: &str) -> Option<(Option<PortType>, Option<PortType>)> {
+    use PortType::*;
+    Some(match kind {
+        "folder" | "watch-folder" => (None, Some(File)),
+        "synthetic" => (None, Some(Shape)),
+        "ingest" => (Some(File), Some(Shape)),
+        "spectral" => (Some(Shape), Some(Spectrum)),
+        "descriptor" => (Some(Spectrum), Some(Descriptor)),
+        "forest" => (Some(Descriptor), Some(Prediction)),
+        "matcher" => (Some(Prediction), Some(Matches)),
+        "fmap" => (Some(Matches), Some(Map)),
+        "match-sink" | "eval-sink" => (Some(Map), None),
+        "trainer" => (Some(Spectrum), None),
+        _ => return None,
+    })
+}
+
+fn validate_graph(stages: &[Node], problems: &mut Vec<String>) {
+    let mut by_name: HashMap<&str, &Node> = HashMap::new();
     for s in stages {
-        by_name.insert(&s.name, s);
+        by_name.entry(s.name.as_str()).or_insert(s); // a repeated name is reported elsewhere
     }
     if stages.is_empty() {
         problems.push("no stages: add [[stage]] tables".into());
@@ -406,35 +433,37 @@ fn validate_graph(stages: &[StageSpec], problems: &mut Vec<String>) {
     }
     let mut consumers: HashMap<&str, Vec<&str>> = HashMap::new();
     for s in stages {
-        let (takes, _) = s.kind.ports();
+        let takes = s.ports.map(|p| p.0);
         match (&s.input, takes) {
-            (Some(_), None) => problems.push(format!("stage `{}`: a source takes no `input`", s.name)),
-            (None, Some(t)) => problems.push(format!("stage `{}`: missing `input` (it takes {t})", s.name)),
-            (Some(i), Some(t)) => match by_name.get(i.as_str()) {
+            (Some(_), Some(None)) => problems.push(format!("stage `{}`: a source takes no `input`", s.name)),
+            (None, Some(Some(t))) => {
+                problems.push(format!("stage `{}`: missing `input` (it takes {t})", s.name))
+            }
+            (Some(i), _) => match by_name.get(i.as_str()) {
                 None => problems.push(format!("stage `{}`: `input` names no stage: `{i}`", s.name)),
                 Some(p) => {
                     consumers.entry(p.name.as_str()).or_default().push(&s.name);
-                    match p.kind.ports().1 {
-                        None => problems
+                    match (p.ports.map(|x| x.1), takes) {
+                        (Some(None), _) => problems
                             .push(format!("stage `{}`: input `{i}` is a sink and emits nothing", s.name)),
-                        Some(o) if o != t => {
+                        (Some(Some(o)), Some(Some(t))) if o != t => {
                             problems.push(format!("stage `{}`: takes {t} but `{i}` emits {o}", s.name))
                         }
                         _ => {}
                     }
                 }
             },
-            (None, None) => {}
+            _ => {}
         }
     }
     for s in stages {
         let users = consumers.get(s.name.as_str()).map_or(&[][..], |v| v.as_slice());
-        match (s.kind.ports().1, users.len()) {
-            (Some(o), 0) => problems.push(format!(
+        match (s.ports.map(|p| p.1), users.len()) {
+            (Some(Some(o)), 0) => problems.push(format!(
                 "stage `{}`: its output ({o}) goes nowhere; add a stage with `input = \"{}\"`",
                 s.name, s.name
             )),
-            (Some(_), n) if n > 1 => problems.push(format!(
+            (_, n) if n > 1 => problems.push(format!(
                 "stage `{}`: feeds {} stages ({}); an output goes to exactly one stage",
                 s.name,
                 n,
@@ -446,7 +475,7 @@ fn validate_graph(stages: &[StageSpec], problems: &mut Vec<String>) {
     // Everything must hang off a source (this also rules out cycles).
     let mut reached: HashSet<&str> =
         stages.iter().filter(|s| s.input.is_none()).map(|s| s.name.as_str()).collect();
-    if reached.is_empty() {
+    if !stages.iter().any(|s| s.input.is_none() && s.ports.is_some_and(|p| p.0.is_none())) {
         problems.push("no source stage (folder, watch-folder or synthetic)".into());
     }
     loop {
