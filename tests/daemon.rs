@@ -167,6 +167,8 @@ fn daemon_matches_scans_rejects_a_broken_file_and_stops_cleanly() {
     wait_until(&mut d, "the folders", || incoming.is_dir());
     std::fs::write(incoming.join("broken.off"), "OFF\n3 1 0\n0 0 0\n").unwrap();
     std::fs::write(incoming.join("notes.txt"), "not a mesh").unwrap();
+    // A copier's temporary file (rsync writes `.NAME.XXXXXX`, then renames): left alone.
+    std::fs::write(incoming.join(".late.off.Xa81Z"), "OFF\n").unwrap();
     // A large copy in progress: written in pieces, with pauses shorter than the settle time.
     // Read half-way it would be rejected as truncated.
     let slow = {
@@ -226,7 +228,7 @@ fn daemon_matches_scans_rejects_a_broken_file_and_stops_cleanly() {
     assert!(rejected.join("broken.off").is_file() && rejected.join("notes.txt").is_file());
     assert!(!rejected.join("slow.error.json").exists(), "a file being copied is not read half-way");
     assert_eq!(read_map(&data.join("matched/slow"), "slow").len(), n);
-    assert!(files_in(&incoming).is_empty());
+    assert_eq!(files_in(&incoming), [".late.off.Xa81Z"], "only the copier's temporary file is left");
     let log = d.stop();
     assert!(log.contains("per-actor") || log.contains("actor"), "summary printed:\n{log}");
 }

@@ -223,6 +223,24 @@ pub fn is_mesh_file(path: &Path) -> bool {
     [".off", ".obj", ".ply", ".vert"].iter().any(|e| name.ends_with(e))
 }
 
+/// Whether a file is something being written or an editor's or copier's own (hidden dot-files
+/// such as rsync's `.NAME.XXXXXX`, `*.part`, `*.partial`, `*.tmp`, `*.crdownload`, `*~`): a
+/// watcher leaves it alone until it is renamed to its final name.
+///
+/// ```
+/// use std::path::Path;
+/// use shapeforest::pipeline::is_transient_file;
+/// assert!(is_transient_file(Path::new("in/.scan.off.Xa81Z")));
+/// assert!(is_transient_file(Path::new("in/scan.off.part")));
+/// assert!(!is_transient_file(Path::new("in/scan.off")));
+/// ```
+pub fn is_transient_file(path: &Path) -> bool {
+    let name = file_name(path).to_ascii_lowercase();
+    name.starts_with('.')
+        || name.ends_with('~')
+        || [".part", ".partial", ".tmp", ".crdownload", ".download", ".swp"].iter().any(|e| name.ends_with(e))
+}
+
 /// The label map that goes with a mesh: `NAME.labels` (per vertex) or `NAME.vts` (per label),
 /// next to it.
 pub fn label_sidecar(mesh: &Path) -> Option<PathBuf> {

@@ -16,7 +16,10 @@ use crate::{
     pipeline::{
         actor::{Emitter, Source},
         message::{shape_stem, Envelope, Failure, InputFile, Job, Shape},
-        store::{is_mesh_file, label_sidecar, move_file, read_dir_sorted, unique_path, DataDir, InputKind},
+        store::{
+            is_mesh_file, is_transient_file, label_sidecar, move_file, read_dir_sorted, unique_path, DataDir,
+            InputKind,
+        },
     },
     synth::{creature_family, CreatureParams},
 };
@@ -252,6 +255,9 @@ impl WatchSource {
         let mut present = std::collections::HashSet::new();
         let mut ready = Vec::new();
         for p in entries {
+            if is_transient_file(&p) {
+                continue;
+            }
             let Ok(meta) = fs::metadata(&p) else { continue };
             if !meta.is_file() {
                 continue;
