@@ -140,21 +140,27 @@ pub const STAGE_TYPES: &[&str] = &[
 ];
 
 impl StageKind {
+    /// The type's name in pipeline files.
+    pub fn type_name(&self) -> &'static str {
+        match self {
+            StageKind::Folder(_) => "folder",
+            StageKind::WatchFolder(_) => "watch-folder",
+            StageKind::Synthetic(_) => "synthetic",
+            StageKind::Ingest(_) => "ingest",
+            StageKind::Spectral(_) => "spectral",
+            StageKind::Descriptor => "descriptor",
+            StageKind::Forest => "forest",
+            StageKind::Matcher(_) => "matcher",
+            StageKind::Fmap(_) => "fmap",
+            StageKind::MatchSink(_) => "match-sink",
+            StageKind::EvalSink(_) => "eval-sink",
+            StageKind::Trainer(_) => "trainer",
+        }
+    }
+
     /// What it consumes (`None`: a source) and emits (`None`: a sink).
     pub fn ports(&self) -> (Option<PortType>, Option<PortType>) {
-        use PortType::*;
-        match self {
-            StageKind::Folder(_) | StageKind::WatchFolder(_) => (None, Some(File)),
-            StageKind::Synthetic(_) => (None, Some(Shape)),
-            StageKind::Ingest(_) => (Some(File), Some(Shape)),
-            StageKind::Spectral(_) => (Some(Shape), Some(Spectrum)),
-            StageKind::Descriptor => (Some(Spectrum), Some(Descriptor)),
-            StageKind::Forest => (Some(Descriptor), Some(Prediction)),
-            StageKind::Matcher(_) => (Some(Prediction), Some(Matches)),
-            StageKind::Fmap(_) => (Some(Matches), Some(Map)),
-            StageKind::MatchSink(_) | StageKind::EvalSink(_) => (Some(Map), None),
-            StageKind::Trainer(_) => (Some(Spectrum), None),
-        }
+        ports_of(self.type_name()).unwrap_or((None, None))
     }
 
     fn parse(kind: &str, rest: toml::Table) -> Result<StageKind, String> {
