@@ -135,3 +135,56 @@ fn train_reads_vts_style_label_maps() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bad.vts") && err.contains("line 2"), "{err}");
 }
+
+#[test]
+fn run_refuses_a_bad_pipeline_file_naming_stage_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("mine.toml");
+    std::fs::write(
+        &file,
+        "name = \"mine\"\n[[stage]]\nname = \"in\"\ntype = \"folder\"\nfolder = \"x\"\n\
+         [[stage]]\nname = \"read\"\ntype = \"ingest\"\ninput = \"in\"\nmax_vertex = 5\n",
+    )
+    .unwrap();
+    let out = bin().arg("run").arg(&file).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("mine.toml"), "{err}");
+    assert!(err.contains("stage `read` (ingest): unknown field `max_vertex`"), "{err}");
+    assert!(err.contains("its output (shape) goes nowhere"), "{err}");
+}
+
+#[test]
+fn train_then_match_pipelines_on_a_data_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let fam = shapeforest::synth::creature_family(
+        &shapeforest::synth::CreatureParams { target_vertices: 1200, seed: 2, ..Default::default() },
+        4,
+    )
+    .unwrap();
+    let n = fam.template.n_vertices();
+    let labels: String = (0..n).map(|v| format!("{v}\n")).collect();
+    std::fs::create_dir_all(data.join("labeled")).unwrap();
+    std::fs::create_dir_all(data.join("incoming")).unwrap();
+    for i in 0..3 {
+        write_mesh(data.join(format!("labeled/c{i}.off")), &fam.shapes[i]).unwrap();
+        std::fs::write(data.join(format!("labeled/c{i}.labels")), &labels).unwrap();
+    }
+    write_mesh(data.join("incoming/scan.off"), &fam.shapes[3]).unwrap();
+    let root = env!("CARGO_MANIFEST_DIR");
+    for p in ["train", "match"] {
+        let out = bin()
+            .arg("run")
+            .arg(format!("{root}/pipelines/{p}.toml"))
+            .arg("--data-dir")
+            .arg(&data)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{p}: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    assert!(data.join("models/model-v000001.sfm").is_file());
+    let map = std::fs::read_to_string(data.join("matched/scan/scan.map.txt")).unwrap();
+    assert_eq!(map.lines().filter(|l| !l.starts_with('#')).count(), n);
+    assert!(data.join("incoming/scan.off").is_file(), "batch matching reads inputs in place");
+}
