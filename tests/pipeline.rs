@@ -279,3 +279,63 @@ fn failures_are_values_with_a_kind() {
     assert_eq!(f.to_string(), "stage `ingest`: x.off: line 3: bad vertex");
     assert_eq!(Failure::interrupted("fmap").kind, FailureKind::Interrupted);
 }
+
+#[test]
+fn the_newest_model_that_loads_is_used_and_bad_versions_are_named() {
+    use shapeforest::{
+        forest::{labels_identity, RandomForest, TrainingSet, TrainingShape},
+        pipeline::store::{latest_model, prune_models, save_model_version, ModelManifest},
+        spectral::{compute_spectrum, SpectrumParams},
+        synth::{creature_family, CreatureParams},
+    };
+    let fam =
+        creature_family(&CreatureParams { target_vertices: 800, seed: 4, ..Default::default() }, 2).unwrap();
+    let n = fam.template.n_vertices();
+    let shapes = fam
+        .shapes
+        .iter()
+        .enumerate()
+        .map(|(i, m)| TrainingShape {
+            name: format!("s{i}"),
+            spectrum: Arc::new(compute_spectrum(m, &SpectrumParams::new(30)).unwrap()),
+            labels: labels_identity(n),
+        })
+        .collect();
+    let set = TrainingSet::new(shapes, n).unwrap();
+    let forest = RandomForest::params().n_trees(2).check().unwrap().fit(&set).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let manifest = |v: u64| ModelManifest {
+        version: v,
+        model_file: format!("model-v{v:06}.sfm"),
+        created_unix: 0,
+        reference: "s0".into(),
+        training_shapes: vec!["s0".into(), "s1".into()],
+        n_labels: n,
+        n_trees: 2,
+        k: forest.k(),
+    };
+    for v in 1..=3 {
+        save_model_version(tmp.path(), &forest, &manifest(v)).unwrap();
+    }
+    // Version 3's model is damaged, version 4 has no model file at all.
+    let bytes = std::fs::read(tmp.path().join("model-v000003.sfm")).unwrap();
+    std::fs::write(tmp.path().join("model-v000003.sfm"), &bytes[..bytes.len() / 2]).unwrap();
+    std::fs::write(tmp.path().join("model-v000004.json"), serde_json::to_string(&manifest(4)).unwrap())
+        .unwrap();
+    let (found, problems) = latest_model(tmp.path());
+    let (m, f) = found.unwrap();
+    assert_eq!(m.version, 2);
+    assert_eq!(f, forest);
+    assert_eq!(problems.len(), 2, "{problems:?}");
+    assert!(
+        problems[0].contains("model-v000004.sfm") && problems[1].contains("model-v000003.sfm"),
+        "{problems:?}"
+    );
+    prune_models(tmp.path(), 2);
+    let left: Vec<String> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".json"))
+        .collect();
+    assert_eq!(left.len(), 2);
+}
