@@ -13,6 +13,7 @@
 
 pub mod protocol;
 mod report;
+pub mod symmetry;
 
 pub use report::{plot_curves_svg, write_curves_csv, CurveSeries};
 
