@@ -48,7 +48,7 @@ pub struct EvalArgs {
     pub no_symmetry: bool,
     /// A symmetry derived from feature points is used only when at least this fraction of the
     /// held-out feature points (and of the S∘S ≈ id checks) is within 0.05.
-    #[arg(long, default_value_t = 0.75)]
+    #[arg(long, default_value_t = 0.67)]
     pub symmetry_min: f64,
     /// Use the built-in synthetic creature family instead of files.
     #[arg(long)]
@@ -382,7 +382,7 @@ fn feature_symmetry(
     };
     let solver = SymmetrySolver::new(&shape.mesh, Arc::new(spectrum), SymmetryParams::default())?;
     let derived = solver.derive(&features)?;
-    let check = solver.validate(&features, 4, &derived)?;
+    let check = solver.validate(&features, 10, &derived)?;
     println!(
         "symmetry from {name}.sym.info ({} pairs, {} plane points) on {}: held-out feature points \
          ({} folds) {:.1} % within 0.05, mean {:.4}, max {:.4}; S∘S ≈ id on {:.1} % of sampled \
