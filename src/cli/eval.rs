@@ -1,10 +1,21 @@
 //! `shapeforest eval`: the paper's protocol on a class of shapes with ground truth.
 //!
+//! A class folder holds OFF meshes (`.off` or `.off.gz`). Ground truth is read from per-label
+//! `NAME.vts` tables (1-based; row k of two shapes' tables correspond), found beside the meshes
+//! or in a `corres/` folder, when every mesh has one (remeshed TOSCA); otherwise the shapes
+//! must share vertex indexing. The symmetry map behind the "flips allowed" figures comes from
+//! `NAME.sym.vts` (row k: the mirror image of row k) for `.vts` classes, and for shared-indexing
+//! classes is derived on the first shape from the sparse symmetric feature points
+//! `CLASS.sym.info` + `CLASS.pid` ([`shapeforest::eval::symmetry::SymmetrySolver`]); the
+//! derived map is cross-validated at the feature points and refused (strict figures only) when
+//! less than `--symmetry-min` of them land within 0.05.
+//!
 //! Prints a table (method × {≤0.05, ≤0.1, mean}, strict and symmetric where a symmetry map
 //! exists) and per-stage timings, and writes into `--out`: `results.csv` (per test shape and
 //! method), `timings.csv` (per test shape and stage), `curves.csv` and `curves.svg` (cumulative
-//! curves, one per method), and `peer/pairs.json` (the test/reference pairs with their mesh
-//! files and the evaluated vertices, for `scripts/pyfm_peer.py`).
+//! curves, one per method), `symmetry.csv` (held-out errors of a derived symmetry at the
+//! feature points) and `peer/pairs.json` (the test/reference pairs with their mesh files, the
+//! evaluated vertices and their mirror images, for `scripts/pyfm_peer.py`).
 
 use std::{
     fmt::Write as _,
