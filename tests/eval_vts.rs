@@ -87,7 +87,10 @@ fn vts_mistakes_are_named() {
     let dir = tempfile::tempdir().unwrap();
     let class = shuffled_class(dir.path(), 2, 50);
     let run = || {
-        let o = bin().args(["eval", "--quiet", "--no-cache", "--prefix", "creature", "--class"]).arg(&class).output();
+        let o = bin()
+            .args(["eval", "--quiet", "--no-cache", "--prefix", "creature", "--class"])
+            .arg(&class)
+            .output();
         String::from_utf8_lossy(&o.unwrap().stderr).to_string()
     };
     // A vertex beyond the mesh names the file, the line and the 1-based convention.
