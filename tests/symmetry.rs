@@ -127,3 +127,22 @@ fn derived_symmetry_of_tosca_wolf_agrees_with_its_mirrored_ground_truth() {
     );
     assert!(within >= 0.9, "only {:.1} % within 0.05", 100.0 * within);
 }
+
+#[test]
+fn bad_symmetry_inputs_are_refused_with_a_reason() {
+    let mesh = shapeforest::synth::icosphere(2, 1.0);
+    let spectrum = Arc::new(compute_spectrum(&mesh, &SpectrumParams::new(30)).unwrap());
+    let small = SymmetryParams { k_final: 30, zoomout_samples: 100, ..Default::default() };
+    let solver = SymmetrySolver::new(&mesh, spectrum.clone(), small.clone()).unwrap();
+    let err = |f: SymmetricFeatures| solver.fit(&f).unwrap_err().to_string();
+    assert!(err(SymmetricFeatures::default()).contains("at least one mirrored feature pair"));
+    let far = SymmetricFeatures { pairs: vec![(0, 100_000)], plane: vec![] };
+    assert!(err(far).contains("100000"));
+    // A spectrum of another mesh, and too few eigenpairs for the initial fit.
+    let other = shapeforest::synth::icosphere(1, 1.0);
+    let e = SymmetrySolver::new(&other, spectrum.clone(), small.clone()).err().unwrap().to_string();
+    assert!(e.contains("vertices"), "{e}");
+    let tiny = Arc::new(compute_spectrum(&mesh, &SpectrumParams::new(10)).unwrap());
+    let e = SymmetrySolver::new(&mesh, tiny, small).err().unwrap().to_string();
+    assert!(e.contains("eigenpairs"), "{e}");
+}

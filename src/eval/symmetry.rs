@@ -356,22 +356,22 @@ impl SymmetrySolver {
         spectrum: std::sync::Arc<Spectrum>,
         params: SymmetryParams,
     ) -> Result<Self, Error> {
-        let mut params = params;
-        params.k_final = params.k_final.min(spectrum.k());
         params.check()?;
-        if spectrum.n_vertices != mesh.n_vertices() {
-            return Err(EvalError::SizeMismatch(format!(
-                "spectrum of {} vertices for a mesh of {}",
-                spectrum.n_vertices,
-                mesh.n_vertices()
-            ))
-            .into());
-        }
         if spectrum.k() < params.k_initial {
             return Err(EvalError::InvalidInput(format!(
                 "the spectrum has {} eigenpairs, the symmetry fit needs {}",
                 spectrum.k(),
                 params.k_initial
+            ))
+            .into());
+        }
+        let mut params = params;
+        params.k_final = params.k_final.min(spectrum.k());
+        if spectrum.n_vertices != mesh.n_vertices() {
+            return Err(EvalError::SizeMismatch(format!(
+                "spectrum of {} vertices for a mesh of {}",
+                spectrum.n_vertices,
+                mesh.n_vertices()
             ))
             .into());
         }
