@@ -106,8 +106,7 @@ pub fn label_symmetry_from_mirrored_truth(shapes: &[MirroredTruth<'_>]) -> Resul
             fill[v] += 1;
         }
         let labelled: Vec<usize> = (0..n).filter(|&v| start[v + 1] > start[v]).collect();
-        for k in 0..n_labels {
-            let target = s.mirrored[k];
+        for (votes_k, &target) in votes.iter_mut().zip(s.mirrored) {
             let v = if start[target + 1] > start[target] {
                 target
             } else {
@@ -121,9 +120,9 @@ pub fn label_symmetry_from_mirrored_truth(shapes: &[MirroredTruth<'_>]) -> Resul
             let cands = &rows[start[v]..start[v + 1]];
             let w = 1.0 / cands.len().max(1) as f64;
             for &c in cands {
-                match votes[k].iter_mut().find(|(l, _)| *l == c) {
+                match votes_k.iter_mut().find(|(l, _)| *l == c) {
                     Some(e) => e.1 += w,
-                    None => votes[k].push((c, w)),
+                    None => votes_k.push((c, w)),
                 }
             }
         }
@@ -284,7 +283,7 @@ impl SymmetryParams {
         if weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
             return bad("weights (feature, wks, orientation, commutativity, ridge) must be finite and ≥ 0");
         }
-        if !(self.ridge > 0.0) {
+        if self.ridge <= 0.0 {
             return bad("ridge must be greater than 0");
         }
         Ok(())
