@@ -108,3 +108,70 @@ fn vts_mistakes_are_named() {
     let err = run();
     assert!(err.contains("missing for: creature1"), "{err}");
 }
+
+/// A class sharing vertex indexing with sparse feature files `creature.pid` and
+/// `creature.sym.info` (pairs from the exact mirror map, or deliberately wrong ones).
+fn feature_class(dir: &Path, wrong_pairs: bool) -> std::path::PathBuf {
+    let params = CreatureParams { target_vertices: 900, seed: 5, ..Default::default() };
+    let family = creature_family(&params, 3).unwrap();
+    let class = dir.join("features");
+    std::fs::create_dir_all(&class).unwrap();
+    for (i, shape) in family.shapes.iter().enumerate() {
+        write_mesh(class.join(format!("creature{i}.off")), shape).unwrap();
+    }
+    let t = &family.template;
+    // Feature vertices spread over the right side (x > 0), with their mirror images.
+    let mut right: Vec<usize> = (0..t.n_vertices()).filter(|&v| t.vertices[v][0] > 0.1).collect();
+    right.shuffle(&mut ChaCha8Rng::seed_from_u64(2));
+    right.truncate(8);
+    let plane: Vec<usize> =
+        (0..t.n_vertices()).filter(|&v| family.symmetry[v] == v).step_by(50).take(3).collect();
+    let mut pid = String::new();
+    let mut info = String::new();
+    for (k, &v) in right.iter().enumerate() {
+        // Wrong pairs: each feature "mirrors" the next one's mirror image.
+        let m = if wrong_pairs { family.symmetry[right[(k + 1) % right.len()]] } else { family.symmetry[v] };
+        pid.push_str(&format!("{v} 0 0 0\n{m} 0 0 0\n"));
+        info.push_str(&format!("{} {}\n", 2 * k, 2 * k + 1));
+    }
+    info.push('\n');
+    for (k, &v) in plane.iter().enumerate() {
+        pid.push_str(&format!("{v} 0 0 0\n"));
+        info.push_str(&format!("{}\n", 2 * right.len() + k));
+    }
+    std::fs::write(class.join("creature.pid"), pid).unwrap();
+    std::fs::write(class.join("creature.sym.info"), info).unwrap();
+    class
+}
+
+#[test]
+fn eval_derives_a_symmetry_from_feature_points_and_refuses_a_wrong_one() {
+    let dir = tempfile::tempdir().unwrap();
+    for wrong in [false, true] {
+        let class = feature_class(dir.path(), wrong);
+        let out = dir.path().join(format!("out{wrong}"));
+        let o = bin()
+            .args(["eval", "--quiet", "--no-cache", "--prefix", "creature", "--train", "2", "--tests", "1"])
+            .args(["--trees", "3", "--eval-points", "200", "--class"])
+            .arg(&class)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&o.stderr));
+        println!("{stdout}");
+        assert!(stdout.contains("symmetry from creature.sym.info (8 pairs, 3 plane points)"), "{stdout}");
+        assert!(out.join("symmetry.csv").is_file());
+        let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
+        let reg = csv.lines().find(|l| l.contains(",forest+reg,")).unwrap();
+        let sym_col = reg.split(',').nth(8).unwrap();
+        if wrong {
+            assert!(stdout.contains("not accurate enough"), "{stdout}");
+            assert!(sym_col.is_empty(), "a refused symmetry must give strict figures only: {reg}");
+        } else {
+            assert!(!stdout.contains("not accurate enough"), "{stdout}");
+            assert!(sym_col.parse::<f64>().unwrap() > 0.5, "{reg}");
+        }
+    }
+}
