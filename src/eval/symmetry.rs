@@ -172,7 +172,7 @@ impl SymmetricFeatures {
     /// let (out, kept) = f.fold(0, 2);
     /// assert_eq!(out.pairs, vec![(1, 2), (5, 6)]);
     /// assert_eq!(kept.pairs, vec![(3, 4)]);
-    /// assert_eq!((out.plane, kept.plane), (vec![7], vec![8]));
+    /// assert_eq!((out.plane, kept.plane), (vec![8], vec![7]));
     /// ```
     pub fn fold(&self, fold: usize, n_folds: usize) -> (SymmetricFeatures, SymmetricFeatures) {
         let n_folds = n_folds.max(1);
