@@ -9,11 +9,14 @@ functional map, then ZoomOut refinement with `nit=15, step=1`) and reports the s
 shapeforest: geodesic error on the reference between the mapped vertex and the ground truth,
 divided by sqrt(area of the reference), at the same evaluation points. Distances come from the
 heat method too (potpourri3d's MeshHeatMethodDistanceSolver, t = mean edge length squared).
-Symmetric figures when pairs.json carries a reference symmetry map.
+Symmetric figures (a match counts as correct near the ground truth or near its mirror image,
+as in `shapeforest eval`) when pairs.json carries the mirror images of the evaluated reference
+vertices. Meshes may be gzipped (`.off.gz`).
 
 Usage: pyfm_peer.py OUT [--csv OUT/peer/pyfm_results.csv]
 """
 import argparse
+import gzip
 import json
 import os
 import sys
@@ -23,7 +26,8 @@ import numpy as np
 
 
 def read_off(path):
-    with open(path) as f:
+    opener = gzip.open if path.endswith(".gz") else open
+    with opener(path, "rt") as f:
         tokens = []
         header = f.readline().strip()
         if not header.endswith("OFF"):
@@ -63,8 +67,7 @@ def main():
     from pyFM.functional import FunctionalMapping
     from pyFM.mesh import TriMesh
 
-    sym = spec.get("reference_symmetry")
-    sym = np.asarray(sym) if sym is not None else None
+    sym = any(p.get("eval_reference_mirror_vertices") is not None for p in spec["pairs"])
     methods = ["pyfm", "pyfm+zoomout"]
     pooled = {m: ([], []) for m in methods}
     rows = []
@@ -91,19 +94,21 @@ def main():
         norm = 1.0 / np.sqrt(area(v_ref, f_ref))
         ev_t = np.asarray(p["eval_test_vertices"])
         ev_r = np.asarray(p["eval_reference_vertices"])
+        ev_m = p.get("eval_reference_mirror_vertices")
         errs = {m: ([], []) for m in methods}
         for j, (mt, gr) in enumerate(zip(ev_t, ev_r)):
             d = solver.compute_distance(int(gr))
+            d_mirror = solver.compute_distance(int(ev_m[j])) if sym and ev_m is not None else None
             for m, mp in (("pyfm", p2p), ("pyfm+zoomout", p2p_zo)):
                 r = mp[mt]
                 e = d[r] * norm
                 errs[m][0].append(e)
-                if sym is not None:
-                    errs[m][1].append(min(e, d[sym[r]] * norm))
+                if d_mirror is not None:
+                    errs[m][1].append(min(e, d_mirror[r] * norm))
         t_eval = time.perf_counter() - t0
         for m in methods:
             s = summary(errs[m][0])
-            y = summary(errs[m][1]) if sym is not None else None
+            y = summary(errs[m][1]) if errs[m][1] else None
             pooled[m][0].extend(errs[m][0])
             pooled[m][1].extend(errs[m][1])
             rows.append((p["test"], p["reference"], m, s, y))
@@ -114,13 +119,13 @@ def main():
         )
     print(f"\npyFM {getattr(sys.modules.get('pyFM'), '__version__', '?')} over {len(spec['pairs'])} pair(s)")
     hdr = f"{'method':<14} | {'<=0.05':>7} {'<=0.1':>7} {'mean':>7}"
-    if sym is not None:
+    if sym:
         hdr += f" | {'sym<=0.05':>9} {'sym<=0.1':>9} {'sym mean':>8}"
     print(hdr)
     for m in methods:
         s = summary(pooled[m][0])
         line = f"{m:<14} | {100*s['within_005']:6.1f}% {100*s['within_010']:6.1f}% {s['mean']:7.4f}"
-        if sym is not None:
+        if sym and pooled[m][1]:
             y = summary(pooled[m][1])
             line += f" | {100*y['within_005']:8.1f}% {100*y['within_010']:8.1f}% {y['mean']:8.4f}"
         print(line)

@@ -213,7 +213,8 @@ fn wolf_class_from_shared_data() {
     }
     let out = tempfile::tempdir().unwrap();
     let o = bin()
-        .args(["eval", "--quiet", "--no-cache", "--prefix", "wolf", "--train", "2", "--tests", "1"])
+        .args(["eval", "--quiet", "--no-cache", "--no-symmetry", "--prefix", "wolf"])
+        .args(["--train", "2", "--tests", "1"])
         .args(["--train-once", "--trees", "4", "--eval-points", "300", "--class"])
         .arg(&dir)
         .arg("--out")

@@ -1,10 +1,21 @@
 //! `shapeforest eval`: the paper's protocol on a class of shapes with ground truth.
 //!
+//! A class folder holds OFF meshes (`.off` or `.off.gz`). Ground truth is read from per-label
+//! `NAME.vts` tables (1-based; row k of two shapes' tables correspond), found beside the meshes
+//! or in a `corres/` folder, when every mesh has one (remeshed TOSCA); otherwise the shapes
+//! must share vertex indexing. The symmetry map behind the "flips allowed" figures comes from
+//! `NAME.sym.vts` (row k: the mirror image of row k) for `.vts` classes, and for shared-indexing
+//! classes is derived on the first shape from the sparse symmetric feature points
+//! `CLASS.sym.info` + `CLASS.pid` ([`shapeforest::eval::symmetry::SymmetrySolver`]); the
+//! derived map is cross-validated at the feature points and refused (strict figures only) when
+//! less than `--symmetry-min` of them land within 0.05.
+//!
 //! Prints a table (method × {≤0.05, ≤0.1, mean}, strict and symmetric where a symmetry map
 //! exists) and per-stage timings, and writes into `--out`: `results.csv` (per test shape and
 //! method), `timings.csv` (per test shape and stage), `curves.csv` and `curves.svg` (cumulative
-//! curves, one per method), and `peer/pairs.json` (the test/reference pairs with their mesh
-//! files and the evaluated vertices, for `scripts/pyfm_peer.py`).
+//! curves, one per method), `symmetry.csv` (held-out errors of a derived symmetry at the
+//! feature points) and `peer/pairs.json` (the test/reference pairs with their mesh files, the
+//! evaluated vertices and their mirror images, for `scripts/pyfm_peer.py`).
 
 use std::{
     fmt::Write as _,
@@ -19,22 +30,37 @@ use shapeforest::{
     eval::{
         plot_curves_svg,
         protocol::{run_protocol, Method, ProtocolEvent, ProtocolParams, ProtocolReport, ProtocolShape},
+        symmetry::{
+            label_symmetry_from_mirrored_truth, MirroredTruth, SymmetricFeatures, SymmetryParams,
+            SymmetrySolver,
+        },
         write_curves_csv, ErrorSummary,
     },
     forest::RandomForest,
     mesh::{read_mesh, write_mesh},
+    spectral::{compute_spectrum, SpectrumCache, SpectrumParams},
     synth::{creature_family, CreatureParams},
 };
 
 /// Arguments of `shapeforest eval`.
 #[derive(Debug, Args)]
 pub struct EvalArgs {
-    /// Folder of OFF meshes of one class sharing vertex indexing (ground truth by index).
+    /// Folder of OFF meshes (`.off` or `.off.gz`) of one class. Ground truth: per-label `NAME.vts`
+    /// tables (1-based; row k of two shapes correspond) when every mesh has one beside it or in
+    /// a `corres/` folder, else common vertex indexing.
     #[arg(long, conflicts_with = "synthetic", required_unless_present = "synthetic")]
     pub class: Option<PathBuf>,
     /// Only files named PREFIX<number>.off (or PREFIX.off) in --class, e.g. `cat`.
     #[arg(long)]
     pub prefix: Option<String>,
+    /// Strict errors only: do not derive a symmetry map (from `NAME.sym.vts`, or from the
+    /// symmetric feature points `CLASS.sym.info` + `CLASS.pid`).
+    #[arg(long)]
+    pub no_symmetry: bool,
+    /// A symmetry derived from feature points is used only when at least this fraction of the
+    /// held-out feature points (and of the S∘S ≈ id checks) is within 0.05.
+    #[arg(long, default_value_t = 0.67)]
+    pub symmetry_min: f64,
     /// Use the built-in synthetic creature family instead of files.
     #[arg(long)]
     pub synthetic: bool,
@@ -82,6 +108,8 @@ struct Class {
     files: Vec<PathBuf>,
     symmetry: Option<Vec<usize>>,
     title: String,
+    /// Ground truth from `.vts` tables (labels are table rows, not vertices).
+    per_label: bool,
 }
 
 /// Numeric suffix of `stem` after `prefix` (`None` when it is not `prefix` + digits).
@@ -97,16 +125,62 @@ fn suffix_number(stem: &str, prefix: &str) -> Option<u64> {
     }
 }
 
-fn load_class(dir: &Path, prefix: Option<&str>) -> Result<Class> {
+/// The stem of a class mesh file: `NAME` for `NAME.off` or `NAME.off.gz` (any case).
+fn off_stem(path: &Path) -> Option<String> {
+    let name = path.file_name()?.to_str()?;
+    let lower = name.to_ascii_lowercase();
+    let cut = if lower.ends_with(".off.gz") {
+        7
+    } else if lower.ends_with(".off") {
+        4
+    } else {
+        return None;
+    };
+    Some(name[..name.len() - cut].to_string())
+}
+
+/// `dir/NAME.EXT`, `dir/corres/NAME.EXT` or `dir/../corres/NAME.EXT`, the first that exists.
+fn find_beside(dir: &Path, name: &str) -> Option<PathBuf> {
+    let mut places = vec![dir.join(name), dir.join("corres").join(name)];
+    if let Some(parent) = dir.parent() {
+        places.push(parent.join("corres").join(name));
+    }
+    places.into_iter().find(|p| p.is_file())
+}
+
+/// Reads a per-label (`.vts`) table: line k holds the 1-based vertex of label k. Every line must
+/// name a vertex of the mesh (the protocol needs a ground-truth vertex for every label).
+fn read_vts(path: &Path, n_vertices: usize) -> Result<Vec<usize>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let Some(tok) = line.split_whitespace().next() else { continue };
+        let v: usize = tok.parse().with_context(|| {
+            format!("{}: line {}: expected a 1-based vertex index, found {tok:?}", path.display(), i + 1)
+        })?;
+        if v == 0 || v > n_vertices {
+            bail!(
+                "{}: line {}: vertex {v} is outside 1..={n_vertices} (the file is 1-based)",
+                path.display(),
+                i + 1
+            );
+        }
+        out.push(v - 1);
+    }
+    if out.is_empty() {
+        bail!("{} holds no vertex", path.display());
+    }
+    Ok(out)
+}
+
+fn load_class(dir: &Path, args: &EvalArgs, out: &Path) -> Result<Class> {
+    let prefix = args.prefix.as_deref();
     let entries =
         std::fs::read_dir(dir).with_context(|| format!("cannot read the class folder {}", dir.display()))?;
     let mut files: Vec<(u64, String, PathBuf)> = Vec::new();
     for e in entries {
         let path = e.with_context(|| format!("cannot list {}", dir.display()))?.path();
-        if path.extension().and_then(|e| e.to_str()).map(|e| e.eq_ignore_ascii_case("off")) != Some(true) {
-            continue;
-        }
-        let Some(stem) = path.file_stem().and_then(|s| s.to_str()).map(str::to_string) else { continue };
+        let Some(stem) = off_stem(&path) else { continue };
         match prefix {
             Some(p) => {
                 if let Some(n) = suffix_number(&stem, p) {
@@ -122,27 +196,232 @@ fn load_class(dir: &Path, prefix: Option<&str>) -> Result<Class> {
             "{} holds {} OFF mesh(es){}; the protocol needs at least 2",
             dir.display(),
             files.len(),
-            prefix.map(|p| format!(" named {p}<number>.off")).unwrap_or_default()
+            prefix.map(|p| format!(" named {p}<number>.off[.gz]")).unwrap_or_default()
         );
     }
+    // Ground truth: per-label `.vts` tables when every mesh has one, else common indexing.
+    let vts: Vec<Option<PathBuf>> =
+        files.iter().map(|(_, stem, _)| find_beside(dir, &format!("{stem}.vts"))).collect();
+    let n_vts = vts.iter().filter(|v| v.is_some()).count();
+    if n_vts > 0 && n_vts < files.len() {
+        let missing: Vec<&str> =
+            files.iter().zip(&vts).filter(|(_, v)| v.is_none()).map(|(f, _)| f.1.as_str()).collect();
+        bail!(
+            "{} of {} meshes have a .vts ground-truth file; missing for: {}",
+            n_vts,
+            files.len(),
+            missing.join(", ")
+        );
+    }
+    let per_label = n_vts == files.len();
     let mut shapes: Vec<ProtocolShape> = Vec::with_capacity(files.len());
-    for (_, stem, path) in &files {
+    for ((_, stem, path), vts) in files.iter().zip(&vts) {
         let mesh = read_mesh(path).with_context(|| format!("cannot read mesh {}", path.display()))?;
-        if let Some(first) = shapes.first() {
-            if mesh.n_vertices() != first.mesh.n_vertices() {
-                bail!(
-                    "{} has {} vertices but {} has {}: a class needs common vertex indexing",
-                    path.display(),
-                    mesh.n_vertices(),
-                    files[0].2.display(),
-                    first.mesh.n_vertices()
-                );
+        match vts {
+            Some(vts) => {
+                let truth = read_vts(vts, mesh.n_vertices())?;
+                if let Some(first) = shapes.first() {
+                    if truth.len() != first.truth.len() {
+                        bail!(
+                            "{} has {} rows but the first shape's table has {}",
+                            vts.display(),
+                            truth.len(),
+                            first.truth.len()
+                        );
+                    }
+                }
+                shapes.push(ProtocolShape { name: stem.clone(), mesh: Arc::new(mesh), truth });
+            }
+            None => {
+                if let Some(first) = shapes.first() {
+                    if mesh.n_vertices() != first.mesh.n_vertices() {
+                        bail!(
+                            "{} has {} vertices but {} has {}: without .vts ground truth a class needs \
+                             common vertex indexing",
+                            path.display(),
+                            mesh.n_vertices(),
+                            files[0].2.display(),
+                            first.mesh.n_vertices()
+                        );
+                    }
+                }
+                shapes.push(ProtocolShape::identity(stem.clone(), Arc::new(mesh)));
             }
         }
-        shapes.push(ProtocolShape::identity(stem.clone(), Arc::new(mesh)));
     }
     let title = prefix.map(str::to_string).unwrap_or_else(|| dir.display().to_string());
-    Ok(Class { shapes, files: files.into_iter().map(|f| f.2).collect(), symmetry: None, title })
+    let symmetry = if args.no_symmetry {
+        None
+    } else if per_label {
+        mirrored_truth_symmetry(dir, &files, &shapes)?
+    } else {
+        feature_symmetry(dir, args, &shapes, out)?
+    };
+    Ok(Class { shapes, files: files.into_iter().map(|f| f.2).collect(), symmetry, title, per_label })
+}
+
+/// The label symmetry from `NAME.sym.vts` files (row k: the vertex at the mirror image of row k
+/// of `NAME.vts`), when every shape has one.
+fn mirrored_truth_symmetry(
+    dir: &Path,
+    files: &[(u64, String, PathBuf)],
+    shapes: &[ProtocolShape],
+) -> Result<Option<Vec<usize>>> {
+    let mut mirrored = Vec::with_capacity(shapes.len());
+    for ((_, stem, _), s) in files.iter().zip(shapes) {
+        let Some(path) = find_beside(dir, &format!("{stem}.sym.vts")) else {
+            println!("no {stem}.sym.vts: strict errors only");
+            return Ok(None);
+        };
+        let m = read_vts(&path, s.mesh.n_vertices())?;
+        if m.len() != s.truth.len() {
+            bail!("{} has {} rows, {stem}.vts has {}", path.display(), m.len(), s.truth.len());
+        }
+        mirrored.push(m);
+    }
+    let views: Vec<MirroredTruth<'_>> = shapes
+        .iter()
+        .zip(&mirrored)
+        .map(|(s, m)| MirroredTruth { mesh: &s.mesh, truth: &s.truth, mirrored: m })
+        .collect();
+    let sym = label_symmetry_from_mirrored_truth(&views)?;
+    // How well the label symmetry reproduces each shape's own mirrored table (in mesh units
+    // relative to √area: rows whose mirror label sits on another vertex than `.sym.vts` says).
+    let mut worst = 0.0f64;
+    for (s, m) in shapes.iter().zip(&mirrored) {
+        let scale = s.mesh.surface_area().sqrt();
+        let mut sum = 0.0;
+        for (k, &mk) in m.iter().enumerate() {
+            let (a, b) = (s.mesh.vertices[s.truth[sym[k]]], s.mesh.vertices[mk]);
+            sum += ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt() / scale;
+        }
+        worst = worst.max(sum / m.len() as f64);
+    }
+    println!(
+        "symmetry from .sym.vts: label map of {} rows; mean Euclidean gap to the listed mirror \
+         vertex ≤ {worst:.4} √area on every shape",
+        sym.len()
+    );
+    Ok(Some(sym))
+}
+
+/// The symmetric feature points of a class: `CLASS.sym.info` (pairs of feature ids, then after
+/// a blank line the features on the symmetry plane) read through `CLASS.pid` (line k: the
+/// 0-based vertex of feature k, first number). `CLASS` is the prefix, or the only `*.sym.info`
+/// of the folder (SCAPE's `1.sym.info`). `None` when there is no such file.
+fn read_features(dir: &Path, prefix: Option<&str>) -> Result<Option<(String, SymmetricFeatures)>> {
+    let info = match prefix.map(|p| dir.join(format!("{p}.sym.info"))).filter(|p| p.is_file()) {
+        Some(p) => p,
+        None => {
+            let mut found = Vec::new();
+            for e in std::fs::read_dir(dir).with_context(|| format!("cannot list {}", dir.display()))? {
+                let path = e?.path();
+                if path.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.ends_with(".sym.info")) {
+                    found.push(path);
+                }
+            }
+            match found.len() {
+                1 => found.remove(0),
+                _ => return Ok(None),
+            }
+        }
+    };
+    let name =
+        info.file_name().and_then(|n| n.to_str()).unwrap_or("").trim_end_matches(".sym.info").to_string();
+    let pid_path = dir.join(format!("{name}.pid"));
+    let pid_text =
+        std::fs::read_to_string(&pid_path).with_context(|| format!("cannot read {}", pid_path.display()))?;
+    let mut pid = Vec::new();
+    for (i, line) in pid_text.lines().enumerate() {
+        let Some(tok) = line.split_whitespace().next() else { continue };
+        let v: usize = tok.parse().with_context(|| {
+            format!("{}: line {}: expected a vertex index, found {tok:?}", pid_path.display(), i + 1)
+        })?;
+        pid.push(v);
+    }
+    let text = std::fs::read_to_string(&info).with_context(|| format!("cannot read {}", info.display()))?;
+    let mut features = SymmetricFeatures::default();
+    let feature = |tok: &str, line: usize| -> Result<usize> {
+        let k: usize = tok.parse().with_context(|| {
+            format!("{}: line {line}: expected a feature number, found {tok:?}", info.display())
+        })?;
+        pid.get(k).copied().with_context(|| {
+            format!(
+                "{}: line {line}: feature {k}, but {} lists {} features",
+                info.display(),
+                pid_path.display(),
+                pid.len()
+            )
+        })
+    };
+    for (i, line) in text.lines().enumerate() {
+        let toks: Vec<&str> = line.split_whitespace().collect();
+        match toks.as_slice() {
+            [] => {}
+            [a] => features.plane.push(feature(a, i + 1)?),
+            [a, b] => features.pairs.push((feature(a, i + 1)?, feature(b, i + 1)?)),
+            _ => bail!("{}: line {}: expected one or two feature numbers", info.display(), i + 1),
+        }
+    }
+    Ok(Some((name, features)))
+}
+
+/// The dense symmetry of a class sharing vertex indexing, derived on its first shape from the
+/// symmetric feature points, cross-validated at those points; `None` (strict figures only) when
+/// the class has no feature file or the derived map is not accurate enough.
+fn feature_symmetry(
+    dir: &Path,
+    args: &EvalArgs,
+    shapes: &[ProtocolShape],
+    out: &Path,
+) -> Result<Option<Vec<usize>>> {
+    let Some((name, features)) = read_features(dir, args.prefix.as_deref())? else {
+        println!("no CLASS.sym.info feature file in {}: no symmetry map", dir.display());
+        return Ok(None);
+    };
+    let shape = &shapes[0];
+    let n = shape.mesh.n_vertices();
+    if let Some((p, _)) = features.points().into_iter().find(|&(p, _)| p >= n) {
+        bail!("{name}.pid names vertex {p}, outside the {n} vertices of {}", shape.name);
+    }
+    let t0 = std::time::Instant::now();
+    let params = SpectrumParams::new(100);
+    let spectrum = if args.no_cache {
+        compute_spectrum(&shape.mesh, &params)?
+    } else {
+        SpectrumCache::new(args.cache.clone())?.get_or_compute(&shape.mesh, &params)?
+    };
+    let solver = SymmetrySolver::new(&shape.mesh, Arc::new(spectrum), SymmetryParams::default())?;
+    let derived = solver.derive(&features)?;
+    let check = solver.validate(&features, 10, &derived)?;
+    println!(
+        "symmetry from {name}.sym.info ({} pairs, {} plane points) on {}: held-out feature points \
+         ({} folds) {:.1} % within 0.05, mean {:.4}, max {:.4}; S∘S ≈ id on {:.1} % of sampled \
+         vertices ({:.1} s)",
+        features.pairs.len(),
+        features.plane.len(),
+        shape.name,
+        check.folds,
+        100.0 * check.within_005,
+        check.mean,
+        check.max,
+        100.0 * check.involution_within_005,
+        t0.elapsed().as_secs_f64()
+    );
+    let mut csv = String::from("vertex,expected,mapped,error\n");
+    for e in &check.held_out {
+        let _ = writeln!(csv, "{},{},{},{:.6}", e.vertex, e.expected, e.mapped, e.error);
+    }
+    write_file(&out.join("symmetry.csv"), &csv)?;
+    if check.within_005 < args.symmetry_min || check.involution_within_005 < args.symmetry_min {
+        println!(
+            "the derived symmetry is not accurate enough (needs {:.0} % of held-out feature points \
+             and of S∘S checks within 0.05, see --symmetry-min): strict errors only",
+            100.0 * args.symmetry_min
+        );
+        return Ok(None);
+    }
+    Ok(Some(derived.map))
 }
 
 fn synthetic_class(args: &EvalArgs, out: &Path) -> Result<Class> {
@@ -165,6 +444,7 @@ fn synthetic_class(args: &EvalArgs, out: &Path) -> Result<Class> {
         files,
         symmetry: Some(family.symmetry),
         title: format!("synthetic creatures, {n} vertices"),
+        per_label: false,
     })
 }
 
@@ -186,7 +466,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create the output folder {}", args.out.display()))?;
     let class = match &args.class {
-        Some(dir) => load_class(dir, args.prefix.as_deref())?,
+        Some(dir) => load_class(dir, &args, &args.out)?,
         None => synthetic_class(&args, &args.out)?,
     };
     let params = ProtocolParams {
@@ -199,18 +479,27 @@ pub fn run(args: EvalArgs) -> Result<()> {
         cache_dir: (!args.no_cache).then(|| args.cache.clone()),
         ..ProtocolParams::default()
     };
-    let n = class.shapes[0].mesh.n_vertices();
+    let n_labels = class.shapes[0].truth.len();
+    let (v_min, v_max) = class
+        .shapes
+        .iter()
+        .map(|s| s.mesh.n_vertices())
+        .fold((usize::MAX, 0), |(a, b), n| (a.min(n), b.max(n)));
+    let size =
+        if v_min == v_max { format!("{v_min} vertices") } else { format!("{v_min}–{v_max} vertices") };
+    let truth =
+        if class.per_label { format!(", {n_labels} ground-truth rows (.vts)") } else { String::new() };
     println!(
-        "{}: {} shapes × {n} vertices; training on {} shape(s){}, {} trees, {} evaluation points",
+        "{}: {} shapes × {size}{truth}; training on {} shape(s){}, {} trees, {} evaluation points",
         class.title,
         class.shapes.len(),
         args.train.min(class.shapes.len() - 1),
         if args.train_once { " (one training set)" } else { " per test" },
         args.trees,
-        args.eval_points.min(n)
+        args.eval_points.min(n_labels)
     );
     if class.symmetry.is_none() {
-        println!("no dense symmetry map for this class: strict errors only");
+        println!("no symmetry map for this class: strict errors only");
     }
     let pb = bar(args.quiet);
     let mut on_event = |e: ProtocolEvent<'_>| match e {
@@ -409,25 +698,32 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
         let reference = &class.shapes[t.reference];
         let ev_test: Vec<usize> = report.eval_labels.iter().map(|&k| test.truth[k]).collect();
         let ev_ref: Vec<usize> = report.eval_labels.iter().map(|&k| reference.truth[k]).collect();
+        let ev_mirror = match &class.symmetry {
+            Some(sym) => {
+                json_list(&report.eval_labels.iter().map(|&k| reference.truth[sym[k]]).collect::<Vec<_>>())
+            }
+            None => "null".into(),
+        };
         let _ = write!(
             json,
-            "    {{\"test\": {}, \"reference\": {}, \"test_mesh\": {}, \"reference_mesh\": {},\n     \"eval_test_vertices\": {},\n     \"eval_reference_vertices\": {}}}{}\n",
+            "    {{\"test\": {}, \"reference\": {}, \"test_mesh\": {}, \"reference_mesh\": {},\n     \"eval_test_vertices\": {},\n     \"eval_reference_vertices\": {},\n     \"eval_reference_mirror_vertices\": {}}}{}\n",
             json_str(&test.name),
             json_str(&reference.name),
             json_str(&abs(&class.files[t.test]).display().to_string()),
             json_str(&abs(&class.files[t.reference]).display().to_string()),
             json_list(&ev_test),
             json_list(&ev_ref),
+            ev_mirror,
             if i + 1 < report.tests.len() { "," } else { "" }
         );
     }
     json.push_str("  ],\n");
     match &class.symmetry {
         // Identity truth tables: the label symmetry is the reference's vertex symmetry.
-        Some(sym) => {
+        Some(sym) if !class.per_label => {
             let _ = writeln!(json, "  \"reference_symmetry\": {}", json_list(sym));
         }
-        None => json.push_str("  \"reference_symmetry\": null\n"),
+        _ => json.push_str("  \"reference_symmetry\": null\n"),
     }
     json.push_str("}\n");
     write_file(&peer.join("pairs.json"), &json)?;

@@ -5,7 +5,10 @@
 //! 11.22). The cumulative curve gives, for thresholds `t ∈ [0, 0.25]`, the fraction of
 //! evaluated vertices with error ≤ t. With a left/right symmetry map `s` of the reference, the
 //! symmetric error is `min(d(T(m), g(m)), d(s(T(m)), g(m)))` — a mirrored match counts as
-//! correct — and is reported separately from the strict figure.
+//! correct — and is reported separately from the strict figure. The protocol
+//! ([`protocol`]) uses the equivalent form with the mirrored ground truth,
+//! `min(d(T(m), g(m)), d(T(m), s(g(m))))` (equal for an exact isometric symmetry), which needs
+//! `s` only at the evaluated points; [`symmetry`] builds the maps `s` of real classes.
 //!
 //! Distances come as columns of a distance-field matrix, one field per ground-truth point (any
 //! geodesic solver: the crate's heat method with a fine time step, or fast marching), so the
@@ -13,6 +16,7 @@
 
 pub mod protocol;
 mod report;
+pub mod symmetry;
 
 pub use report::{plot_curves_svg, write_curves_csv, CurveSeries};
 
