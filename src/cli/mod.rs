@@ -45,9 +45,10 @@ pub enum Command {
     Watch(run::WatchArgs),
 }
 
-/// Sets up `tracing` output on stderr.
-pub fn init_tracing(verbose: u8) {
+/// Sets up `tracing` output on stderr (`quiet`: errors only, unless `RUST_LOG` says otherwise).
+pub fn init_tracing(verbose: u8, quiet: bool) {
     let default = match verbose {
+        0 if quiet => "error",
         0 => "warn",
         1 => "info,notify=warn",
         2 => "debug,notify=info",
