@@ -91,8 +91,8 @@ pub struct EvalArgs {
     /// Output folder.
     #[arg(long, default_value = "shapeforest-eval")]
     pub out: PathBuf,
-    /// Spectrum cache folder.
-    #[arg(long, default_value = "shapeforest-data/spectra")]
+    /// Spectrum cache folder (the watch daemon's `cache/` by default, so either reuses the other's spectra).
+    #[arg(long, default_value = "shapeforest-data/cache")]
     pub cache: PathBuf,
     /// Do not use the spectrum cache.
     #[arg(long)]
