@@ -285,25 +285,39 @@ fn panic_message(p: Box<dyn std::any::Any + Send>) -> String {
     }
 }
 
+/// Runs `f` on `state` on the blocking pool and hands the state back with `f`'s result, or
+/// with the panic message if `f` panicked (the state survives a panicking job). `None` when the
+/// task was cancelled (the runtime is going down).
+async fn on_blocking_pool<S, R>(
+    mut state: S,
+    f: impl FnOnce(&mut S) -> R + Send + 'static,
+) -> Option<(S, Result<R, String>)>
+where
+    S: Send + 'static,
+    R: Send + 'static,
+{
+    tokio::task::spawn_blocking(move || {
+        let r = std::panic::catch_unwind(AssertUnwindSafe(|| f(&mut state)))
+            .map_err(|p| format!("panic: {}", panic_message(p)));
+        (state, r)
+    })
+    .await
+    .ok()
+}
+
 /// Runs a source to completion on the blocking pool.
 pub(crate) async fn run_source<S: Source>(
-    mut source: S,
+    source: S,
     name: String,
     tx: flume::Sender<Envelope<S::Out>>,
     ctx: PipelineContext,
     metrics: Arc<StageMetrics>,
 ) {
     let emitter = Emitter { tx, ctx, metrics };
-    let n = name.clone();
-    let r = tokio::task::spawn_blocking(move || {
-        std::panic::catch_unwind(AssertUnwindSafe(|| source.run(&emitter)))
-            .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))))
-    })
-    .await;
-    match r {
-        Ok(Ok(())) => tracing::debug!(source = %n, "source finished"),
-        Ok(Err(e)) => tracing::error!(source = %n, "source stopped: {e}"),
-        Err(e) => tracing::error!(source = %n, "source task failed: {e}"),
+    match on_blocking_pool(source, move |s| s.run(&emitter)).await {
+        Some((_, Ok(Ok(())))) => tracing::debug!(source = %name, "source finished"),
+        Some((_, Ok(Err(e)) | Err(e))) => tracing::error!(source = %name, "source stopped: {e}"),
+        None => tracing::error!(source = %name, "source task was cancelled"),
     }
 }
 
@@ -328,32 +342,24 @@ pub(crate) async fn run_stage<S: Stage>(
                 Envelope { job, body: Err(Failure::interrupted(&name)) }
             }
             Ok(input) => {
-                let Some(mut s) = stage.take() else { break };
-                let n = name.clone();
-                let mut job = job;
+                let Some(s) = stage.take() else { break };
                 let t0 = Instant::now();
-                let joined = tokio::task::spawn_blocking(move || {
-                    let r = std::panic::catch_unwind(AssertUnwindSafe(|| s.process(&mut job, input)))
-                        .unwrap_or_else(|p| {
-                            Err(Failure {
-                                stage: n.clone(),
-                                kind: FailureKind::Internal,
-                                message: format!("panic: {}", panic_message(p)),
-                            })
-                        });
-                    (s, job, r)
-                })
-                .await;
-                let Ok((s, mut job, r)) = joined else {
+                let Some(((s, mut job), r)) =
+                    on_blocking_pool((s, job), move |(s, job)| s.process(job, input)).await
+                else {
                     tracing::error!(stage = %name, "stage task was cancelled");
                     break;
                 };
                 stage = Some(s);
-                // Failures are reported under the actor's name.
-                let r = r.map_err(|mut f| {
-                    f.stage = name.clone();
-                    f
-                });
+                // Failures (and panics) are reported under the actor's name.
+                let r = r
+                    .unwrap_or_else(|panic| {
+                        Err(Failure { stage: String::new(), kind: FailureKind::Internal, message: panic })
+                    })
+                    .map_err(|mut f| {
+                        f.stage = name.clone();
+                        f
+                    });
                 let dt = t0.elapsed();
                 metrics.record(dt, r.is_ok());
                 job.stage_seconds.push((name.clone(), dt.as_secs_f64()));
@@ -382,18 +388,13 @@ pub(crate) async fn run_sink<S: Sink>(
     rx: flume::Receiver<Envelope<S::In>>,
     metrics: Arc<StageMetrics>,
 ) {
-    let n = name.clone();
-    let started = tokio::task::spawn_blocking(move || {
-        let mut sink = sink;
-        let r = std::panic::catch_unwind(AssertUnwindSafe(|| sink.start()))
-            .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))));
-        (sink, r)
-    })
-    .await;
-    let Ok((s, r)) = started else { return };
-    if let Err(e) = r {
-        tracing::error!(sink = %n, "start failed: {e}");
-    }
+    let log = |what: &str, r: Result<Result<(), String>, String>| {
+        if let Err(e) = r.and_then(|r| r) {
+            tracing::error!(sink = %name, "{what}{e}");
+        }
+    };
+    let Some((s, r)) = on_blocking_pool(sink, |s| s.start()).await else { return };
+    log("start failed: ", r);
     let tick = s.tick();
     let mut sink = Some(s);
     loop {
@@ -403,65 +404,47 @@ pub(crate) async fn run_sink<S: Sink>(
                 Ok(r) => r,
                 Err(_) => {
                     // Nothing arrived for a while: let the sink act on what it holds.
-                    let Some(mut s) = sink.take() else { break };
+                    let Some(s) = sink.take() else { break };
                     let t0 = Instant::now();
-                    let joined = tokio::task::spawn_blocking(move || {
-                        let r = std::panic::catch_unwind(AssertUnwindSafe(|| s.idle()))
-                            .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))));
-                        (s, r)
-                    })
-                    .await;
-                    let Ok((s, r)) = joined else { break };
+                    let Some((s, r)) = on_blocking_pool(s, |s| s.idle()).await else { break };
                     if t0.elapsed() > Duration::from_millis(5) {
                         metrics.add_busy(t0.elapsed());
                     }
                     sink = Some(s);
-                    if let Err(e) = r {
-                        tracing::error!(sink = %name, "{e}");
-                    }
+                    log("", r);
                     continue;
                 }
             },
         };
         let Ok(Envelope { job, body }) = received else { break };
-        let Some(mut s) = sink.take() else { break };
+        let Some(s) = sink.take() else { break };
         let t0 = Instant::now();
         let waiting = rx.clone();
-        let n = name.clone();
-        let joined = tokio::task::spawn_blocking(move || {
-            let r = std::panic::catch_unwind(AssertUnwindSafe(|| {
-                let r = s.consume(job, body);
-                // Let a batching sink act once nothing else is waiting.
-                if waiting.is_empty() {
-                    r.and_then(|_| s.idle())
-                } else {
-                    r
-                }
-            }))
-            .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))));
-            (s, r)
+        let consumed = on_blocking_pool(s, move |s| {
+            let r = s.consume(job, body);
+            // Let a batching sink act once nothing else is waiting.
+            if waiting.is_empty() {
+                r.and_then(|_| s.idle())
+            } else {
+                r
+            }
         })
         .await;
-        let Ok((s, r)) = joined else {
-            tracing::error!(sink = %n, "sink task was cancelled");
+        let Some((s, r)) = consumed else {
+            tracing::error!(sink = %name, "sink task was cancelled");
             break;
         };
         sink = Some(s);
+        let r = r.and_then(|r| r);
         metrics.record(t0.elapsed(), r.is_ok());
-        if let Err(e) = r {
-            tracing::error!(sink = %n, "{e}");
-        }
+        log("", r.map(Ok));
     }
-    if let Some(mut s) = sink {
+    if let Some(s) = sink {
         let t0 = Instant::now();
-        let r = tokio::task::spawn_blocking(move || {
-            std::panic::catch_unwind(AssertUnwindSafe(|| s.finish()))
-                .unwrap_or_else(|p| Err(format!("panic: {}", panic_message(p))))
-        })
-        .await;
+        let finished = on_blocking_pool(s, |s| s.finish()).await;
         metrics.add_busy(t0.elapsed());
-        if let Ok(Err(e)) = r {
-            tracing::error!(sink = %name, "finish failed: {e}");
+        if let Some((_, r)) = finished {
+            log("finish failed: ", r);
         }
     }
 }
