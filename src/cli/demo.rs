@@ -18,7 +18,7 @@ use shapeforest::{
     eval::{geodesic_errors, ErrorSummary},
     geodesic::HeatParams,
     mesh::{read_mesh, write_mesh},
-    pipeline::{daemon::run_spec, store::ModelManifest, DataDir, PipelineSpec, RunOptions, Shutdown},
+    pipeline::{daemon::run_spec, latest_manifest, DataDir, PipelineSpec, RunOptions, Shutdown},
     regularizer::PreparedShape,
     spectral::{SpectrumCache, SpectrumParams},
     synth::{creature_family, CreatureParams},
@@ -76,18 +76,6 @@ fn drop_file(
     let tmp = staging.join(name);
     write(&tmp)?;
     std::fs::rename(&tmp, target_dir.join(name)).with_context(|| format!("cannot move {name} into place"))
-}
-
-/// The newest model manifest in `models/`, if any.
-fn newest_manifest(data: &DataDir) -> Option<ModelManifest> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(data.models())
-        .ok()?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "json"))
-        .collect();
-    v.sort();
-    let text = std::fs::read_to_string(v.last()?).ok()?;
-    serde_json::from_str(&text).ok()
 }
 
 /// Waits until `done()` holds, ticking a progress bar with `count()`; fails if the daemon
@@ -173,9 +161,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
     }
     let train = args.train as u64;
     wait_for("learning", train, deadline, &daemon, || {
-        newest_manifest(&data).map_or(0, |m| m.training_shapes.len() as u64)
+        latest_manifest(&data.models()).map_or(0, |m| m.training_shapes.len() as u64)
     })?;
-    let manifest = newest_manifest(&data).ok_or_else(|| anyhow!("no model manifest"))?;
+    let manifest = latest_manifest(&data.models()).ok_or_else(|| anyhow!("no model manifest"))?;
     println!(
         "  3. dropped {} labelled shapes into labeled/ → model v{} ({} trees, reference `{}`) in {:.1} s",
         args.train,

@@ -360,30 +360,37 @@ pub fn save_model_version(
     Ok(path)
 }
 
+/// The manifests in `dir` that parse, newest first, with the problems met on the way.
+fn manifests_newest_first(dir: &Path) -> (Vec<ModelManifest>, Vec<String>) {
+    let mut problems = Vec::new();
+    let Ok(entries) = read_dir_sorted(dir) else { return (Vec::new(), problems) };
+    let mut found = Vec::new();
+    for m in entries.iter().rev() {
+        let n = file_name(m);
+        if !(n.starts_with("model-v") && n.ends_with(".json")) {
+            continue;
+        }
+        match fs::read_to_string(m)
+            .map_err(|e| e.to_string())
+            .and_then(|t| serde_json::from_str::<ModelManifest>(&t).map_err(|e| e.to_string()))
+        {
+            Ok(x) => found.push(x),
+            Err(e) => problems.push(format!("{}: {e}", m.display())),
+        }
+    }
+    (found, problems)
+}
+
+/// The newest model manifest in `dir` that parses (the model file itself is not read).
+pub fn latest_manifest(dir: &Path) -> Option<ModelManifest> {
+    manifests_newest_first(dir).0.into_iter().next()
+}
+
 /// The newest complete model version in `dir` that loads, with the problems met on the way
 /// (unreadable manifests or models are skipped, newest first).
 pub fn latest_model(dir: &Path) -> (Option<(ModelManifest, RandomForest)>, Vec<String>) {
-    let mut problems = Vec::new();
-    let Ok(entries) = read_dir_sorted(dir) else { return (None, problems) };
-    let mut manifests: Vec<PathBuf> = entries
-        .into_iter()
-        .filter(|p| {
-            let n = file_name(p);
-            n.starts_with("model-v") && n.ends_with(".json")
-        })
-        .collect();
-    manifests.reverse();
-    for m in manifests {
-        let manifest: ModelManifest = match fs::read_to_string(&m)
-            .map_err(|e| e.to_string())
-            .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))
-        {
-            Ok(x) => x,
-            Err(e) => {
-                problems.push(format!("{}: {e}", m.display()));
-                continue;
-            }
-        };
+    let (manifests, mut problems) = manifests_newest_first(dir);
+    for manifest in manifests {
         match RandomForest::load(dir.join(&manifest.model_file)) {
             Ok(f) => return (Some((manifest, f)), problems),
             Err(e) => problems.push(e.to_string()),

@@ -24,8 +24,8 @@ use crate::{
         message::{shape_stem, Failure, Job, SpectralShape},
         model::{LiveModel, ModelState},
         store::{
-            latest_model, move_file, prune_models, read_labels, save_model_version, stored_shapes, DataDir,
-            ModelManifest,
+            latest_manifest, latest_model, move_file, prune_models, read_labels, save_model_version,
+            stored_shapes, DataDir, ModelManifest,
         },
     },
     regularizer::PreparedShape,
@@ -428,9 +428,8 @@ impl TrainerSink {
                 (ts.name.clone(), Arc::new(prepared), Arc::new(table))
             }
         };
-        let (on_disk, _) = latest_model(&self.data.models());
-        let version =
-            current.as_ref().map_or(0, |m| m.version).max(on_disk.map_or(0, |(m, _)| m.version)) + 1;
+        let on_disk = latest_manifest(&self.data.models()).map_or(0, |m| m.version);
+        let version = current.as_ref().map_or(0, |m| m.version).max(on_disk) + 1;
         let names: Vec<String> = set.shapes().iter().map(|s| s.name.clone()).collect();
         let manifest = ModelManifest {
             version,
