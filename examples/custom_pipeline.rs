@@ -8,12 +8,12 @@
 //!
 //! `cargo run --release --example custom_pipeline -- [OUT_DIR]` (default `shapeforest-custom`).
 
-use std::{fs::File, io::BufWriter, path::PathBuf, sync::Arc};
+use std::{path::PathBuf, sync::Arc};
 
 use anyhow::{anyhow, Result};
 use shapeforest::{
     geodesic::HeatParams,
-    mesh::{write_ply, PlyEncoding},
+    mesh::write_colored_ply,
     pipeline::{
         stages::{
             DescriptorStage, EvalSink, EvalSinkConfig, FmapConfig, FmapStage, ForestStage, MatcherConfig,
@@ -42,16 +42,11 @@ impl Stage for ConfidenceColors {
             })
             .collect();
         let path = self.dir.join(format!("{}.confidence.ply", job.name));
-        let fail =
-            |e: String| Failure { stage: "confidence".into(), kind: FailureKind::Internal, message: e };
-        let file = File::create(&path).map_err(|e| fail(format!("{}: {e}", path.display())))?;
-        write_ply(
-            &m.predicted.shape.shape.mesh,
-            BufWriter::new(file),
-            PlyEncoding::BinaryLittleEndian,
-            Some(&colors),
-        )
-        .map_err(|e| fail(e.to_string()))?;
+        write_colored_ply(&path, &m.predicted.shape.shape.mesh, &colors).map_err(|e| Failure {
+            stage: "confidence".into(),
+            kind: FailureKind::Internal,
+            message: e.to_string(),
+        })?;
         Ok(m)
     }
 }

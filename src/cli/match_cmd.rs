@@ -12,8 +12,6 @@
 
 use std::{
     fmt::Write as _,
-    fs::File,
-    io::BufWriter,
     path::{Path, PathBuf},
     sync::Arc,
     time::Instant,
@@ -22,8 +20,8 @@ use std::{
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use shapeforest::{
-    forest::{Prediction, RandomForest},
-    mesh::{coordinate_colors, read_mesh, write_ply, Mesh, PlyEncoding},
+    forest::RandomForest,
+    mesh::{coordinate_colors, read_mesh, write_colored_ply, Mesh},
     regularizer::{regularize, PreparedShape, RegularizerParams},
     spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
 };
@@ -52,15 +50,6 @@ fn stem(p: &Path) -> String {
     p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").to_string()
 }
 
-/// Mean over vertices of the largest posterior probability.
-fn mean_confidence(p: &Prediction) -> f64 {
-    let n = p.n_vertices();
-    if n == 0 {
-        return 0.0;
-    }
-    (0..n).map(|v| p.posterior(v).1.iter().fold(0.0f32, |a, &b| a.max(b)) as f64).sum::<f64>() / n as f64
-}
-
 fn spectrum(
     mesh: &Mesh,
     params: &SpectrumParams,
@@ -75,9 +64,7 @@ fn spectrum(
 }
 
 fn write_colored(path: &Path, mesh: &Mesh, colors: &[[u8; 3]]) -> Result<()> {
-    let f = File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
-    write_ply(mesh, BufWriter::new(f), PlyEncoding::BinaryLittleEndian, Some(colors))
-        .with_context(|| format!("cannot write {}", path.display()))
+    write_colored_ply(path, mesh, colors).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Runs `shapeforest match`.
@@ -152,7 +139,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
     write_colored(&args.out.join(format!("{scan_name}.colored.ply")), &scan, &scan_colors)?;
     let write_s = t0.elapsed().as_secs_f64();
 
-    let confidence = mean_confidence(&prediction);
+    let confidence = prediction.mean_confidence();
     let tm = &dense.timings;
     let report = serde_json::json!({
         "mesh": args.mesh.display().to_string(),

@@ -93,6 +93,17 @@ impl Prediction {
         self.nnz() as f64 / self.n_vertices().max(1) as f64
     }
 
+    /// Mean over vertices of the largest posterior probability (0 for no vertex): how sure the
+    /// prediction is, in reports.
+    pub fn mean_confidence(&self) -> f64 {
+        let n = self.n_vertices();
+        if n == 0 {
+            return 0.0;
+        }
+        (0..n).map(|v| self.posterior(v).1.iter().fold(0.0f32, |a, &b| a.max(b)) as f64).sum::<f64>()
+            / n as f64
+    }
+
     /// The posterior of vertex `v`: labels (ascending) and their probabilities.
     pub fn posterior(&self, v: usize) -> (&[u32], &[f32]) {
         let (a, b) = (self.offsets[v], self.offsets[v + 1]);

@@ -184,3 +184,12 @@ pub fn write_mesh(path: impl AsRef<Path>, mesh: &Mesh) -> Result<(), MeshError> 
     .map_err(|e| e.in_file(path))?;
     w.finish(path)
 }
+
+/// Writes a mesh as binary little-endian PLY with a colour per vertex (`.gz` compresses).
+pub fn write_colored_ply(path: impl AsRef<Path>, mesh: &Mesh, colors: &[[u8; 3]]) -> Result<(), MeshError> {
+    let path = path.as_ref();
+    let (_, gz) = split_gz(path);
+    let mut w = Output::create(path, gz)?;
+    write_ply(mesh, &mut w, PlyEncoding::BinaryLittleEndian, Some(colors)).map_err(|e| e.in_file(path))?;
+    w.finish(path)
+}

@@ -16,7 +16,7 @@ pub use ingest::{IngestConfig, IngestStage};
 pub use regularize::{
     check_regularizer, regularizer_params, FmapConfig, FmapStage, MatcherConfig, MatcherStage,
 };
-pub use sink::{is_claimed, mean_confidence, reject, MatchSink, MatchSinkConfig};
+pub use sink::{is_claimed, reject, MatchSink, MatchSinkConfig};
 pub use source::{
     natural_key, FolderConfig, FolderSource, Labels, SyntheticConfig, SyntheticSource, WatchConfig,
     WatchKind, WatchSource,

@@ -1,18 +1,12 @@
 //! `match-sink`: writes each matched scan's outputs, commits claimed inputs beside them, and
 //! rejects failed inputs with a report. Also the rejection helper other sinks share.
 
-use std::{
-    fmt::Write as _,
-    fs,
-    io::BufWriter,
-    path::{Path, PathBuf},
-};
+use std::{fmt::Write as _, fs, path::PathBuf};
 
 use serde::Deserialize;
 
 use crate::{
-    forest::Prediction,
-    mesh::{coordinate_colors, write_ply, Mesh, PlyEncoding},
+    mesh::{coordinate_colors, write_colored_ply},
     pipeline::{
         actor::Sink,
         message::{Failure, FailureKind, Job, MatchedShape},
@@ -89,21 +83,6 @@ pub fn unix_now() -> u64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs())
 }
 
-/// Mean over vertices of the largest posterior probability.
-pub fn mean_confidence(p: &Prediction) -> f64 {
-    let n = p.n_vertices();
-    if n == 0 {
-        return 0.0;
-    }
-    (0..n).map(|v| p.posterior(v).1.iter().fold(0.0f32, |a, &b| a.max(b)) as f64).sum::<f64>() / n as f64
-}
-
-fn write_colored(path: &Path, mesh: &Mesh, colors: &[[u8; 3]]) -> Result<(), String> {
-    let f = fs::File::create(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    write_ply(mesh, BufWriter::new(f), PlyEncoding::BinaryLittleEndian, Some(colors))
-        .map_err(|e| format!("{}: {e}", path.display()))
-}
-
 /// Writes matched scans into a folder, one sub-folder per scan.
 pub struct MatchSink {
     data: DataDir,
@@ -150,10 +129,11 @@ impl MatchSink {
             let ref_mesh = &model.reference.mesh;
             let ref_colors = coordinate_colors(ref_mesh);
             let scan_colors: Vec<[u8; 3]> = dense.map.iter().map(|&r| ref_colors[r]).collect();
-            write_colored(&partial.join(format!("{name}.colored.ply")), mesh, &scan_colors)?;
+            write_colored_ply(partial.join(format!("{name}.colored.ply")), mesh, &scan_colors)
+                .map_err(|e| e.to_string())?;
             let ref_path = root.join(format!("reference-{}.colored.ply", model.reference_name));
             if !ref_path.exists() {
-                write_colored(&ref_path, ref_mesh, &ref_colors)?;
+                write_colored_ply(&ref_path, ref_mesh, &ref_colors).map_err(|e| e.to_string())?;
             }
         }
         let latency = job.started.elapsed().as_secs_f64();
@@ -170,7 +150,7 @@ impl MatchSink {
             "n_sparse_matches": dense.matches.len(),
             "orientation_score": dense.orientation_score,
             "mirror_rejected": dense.mirror_rejected,
-            "mean_forest_confidence": mean_confidence(&m.predicted.prediction),
+            "mean_forest_confidence": m.predicted.prediction.mean_confidence(),
             "mean_forest_support": m.predicted.prediction.mean_support(),
             "stage_seconds": stages,
             "latency_s": latency,
