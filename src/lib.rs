@@ -31,6 +31,7 @@ pub mod error;
 pub mod eval;
 pub mod fmap;
 pub mod forest;
+mod fsutil;
 pub mod geodesic;
 pub mod matching;
 pub mod mesh;

@@ -7,7 +7,6 @@
 //! file in the same directory, are flushed and synced, then renamed over the target, so a reader
 //! never sees a half-written model. Every failure to read is a typed [`ForestError`].
 
-use std::io::Write;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -137,20 +136,8 @@ impl RandomForest {
     pub fn save(&self, path: impl AsRef<Path>) -> Result<(), ForestError> {
         let path = path.as_ref();
         let bytes = self.to_bytes()?;
-        let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        let name =
-            path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "model".into());
-        let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
-        let write = || -> std::io::Result<()> {
-            let mut f = std::fs::File::create(&tmp)?;
-            f.write_all(&bytes)?;
-            f.sync_all()?;
-            std::fs::rename(&tmp, path)
-        };
-        write().map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            ForestError::Io { path: path.to_path_buf(), source: e }
-        })
+        crate::fsutil::write_atomic(path, &bytes)
+            .map_err(|source| ForestError::Io { path: path.to_path_buf(), source })
     }
 
     /// Reads a model written by [`RandomForest::save`].

@@ -21,8 +21,7 @@
 //! claimed inputs to `incoming/` and `labeled/`: nothing is lost and nothing is matched twice.
 
 use std::{
-    fs,
-    io::{self, Write},
+    fs, io,
     path::{Path, PathBuf},
 };
 
@@ -275,20 +274,10 @@ pub fn read_labels(path: &Path, n_vertices: usize) -> Result<Vec<Option<u32>>, S
     Ok(labels)
 }
 
-/// Writes a file atomically: a temporary file in the same folder, synced, then renamed.
+/// Writes a file atomically (a temporary file in the same folder, synced, then renamed); the
+/// error names the file.
 pub fn atomic_write(path: &Path, bytes: &[u8]) -> io::Result<()> {
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let tmp = dir.join(format!(".{}.tmp{}", file_name(path), std::process::id()));
-    let r = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if r.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    r.map_err(|e| with_path(e, path))
+    crate::fsutil::write_atomic(path, bytes).map_err(|e| with_path(e, path))
 }
 
 /// Moves a file (a rename; a copy and delete across file systems).

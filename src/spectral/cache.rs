@@ -20,9 +20,7 @@
 //! recomputes and overwrites it. [`SpectrumCache::load`] reports the problem as an error.
 
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::{compute_spectrum, SpectralError, Spectrum, SpectrumParams, SOLVER_VERSION};
 use crate::mesh::{Fnv64, Mesh};
@@ -48,9 +46,6 @@ const HEADER_LEN: usize = 8 + 4 + 4 + 8 + 8 + 8 + 8;
 pub struct SpectrumCache {
     dir: PathBuf,
 }
-
-/// Distinguishes concurrent temporary files of one process.
-static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
 impl SpectrumCache {
     /// Version of the file layout; files of another version are not read.
@@ -189,28 +184,8 @@ fn decode(bytes: &[u8], mesh_hash: u64, k: usize, n_vertices: usize) -> Result<S
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SpectralError> {
-    let dir = path.parent().unwrap_or_else(|| Path::new("."));
-    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("spectrum");
-    let tmp = dir.join(format!(
-        ".{name}.{}.{}.tmp",
-        std::process::id(),
-        TEMP_COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    let io = |path: &Path| {
-        let path = path.to_path_buf();
-        move |source| SpectralError::CacheIo { path, source }
-    };
-    let result = (|| {
-        let mut f = fs::File::create(&tmp).map_err(io(&tmp))?;
-        f.write_all(bytes).map_err(io(&tmp))?;
-        f.sync_all().map_err(io(&tmp))?;
-        drop(f);
-        fs::rename(&tmp, path).map_err(io(path))
-    })();
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    result
+    crate::fsutil::write_atomic(path, bytes)
+        .map_err(|source| SpectralError::CacheIo { path: path.to_path_buf(), source })
 }
 
 #[cfg(test)]
