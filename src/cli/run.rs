@@ -57,7 +57,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     let spec = PipelineSpec::from_file(&args.pipeline)?;
     eprintln!("shapeforest: running pipeline `{}` ({})", spec.name, args.pipeline.display());
     let report = run_spec(&spec, args.data_dir.as_deref(), options(args.stop_after), None, |setup| {
-        for n in &setup.notes {
+        for n in setup.notes.iter().chain(&setup.waiting_hint) {
             eprintln!("shapeforest: {n}");
         }
         Ok(())
@@ -96,14 +96,10 @@ pub fn watch(args: WatchArgs) -> Result<()> {
         data_dir.display()
     );
     let report = run_spec(&spec, Some(&data_dir), options(args.stop_after), None, |setup| {
-        let nothing = setup.live.current().is_none()
-            && std::fs::read_dir(setup.data.labeled()).map(|d| d.count()).unwrap_or(0) == 0
-            && std::fs::read_dir(setup.data.training()).map(|d| d.count()).unwrap_or(0) == 0;
-        let bootstrap = args.bootstrap_synthetic && nothing;
-        for n in &setup.notes {
-            if !(bootstrap && n.starts_with("no model")) {
-                eprintln!("shapeforest: {n}");
-            }
+        let bootstrap = args.bootstrap_synthetic && setup.nothing_to_learn;
+        let hint = setup.waiting_hint.iter().filter(|_| !bootstrap);
+        for n in setup.notes.iter().chain(hint) {
+            eprintln!("shapeforest: {n}");
         }
         if bootstrap {
             let n = bootstrap_synthetic(&setup.data, args.vertices, 6, 2, 1)?;

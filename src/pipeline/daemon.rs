@@ -24,8 +24,12 @@ pub struct RunSetup {
     pub data: DataDir,
     /// The live model (loaded from `models/` when one exists).
     pub live: Arc<LiveModel>,
-    /// Lines for the user: recovery, the model in use, what is missing.
+    /// Lines for the user: recovery, the model in use.
     pub notes: Vec<String>,
+    /// No model, no labelled shape waiting and none stored: nothing to learn from yet.
+    pub nothing_to_learn: bool,
+    /// For a daemon with nothing to learn from: what to drop where.
+    pub waiting_hint: Option<String>,
 }
 
 /// Writes `n_train` labelled shapes of the synthetic creature family into `labeled/` and
@@ -110,28 +114,26 @@ pub fn prepare(spec: &PipelineSpec, data: DataDir) -> Result<RunSetup, String> {
     };
     let needs_model = spec.has(|k| matches!(k, StageKind::Descriptor));
     let has_trainer = spec.has(|k| matches!(k, StageKind::Trainer(_)));
-    if live.current().is_none() && needs_model {
-        if !has_trainer {
-            return Err(format!(
-                "no model in {}: this pipeline matches but does not train; run one that trains first \
-                 (e.g. `shapeforest run pipelines/train.toml`)",
-                data.models().display()
-            ));
-        }
-        if spec.is_daemon() {
-            let labelled = fs::read_dir(data.labeled()).map(|d| d.count()).unwrap_or(0);
-            if labelled == 0 && stored_shapes(&data.training()).is_empty() {
-                notes.push(format!(
-                    "no model and no labelled shapes yet: scans wait in {} until a labelled shape \
-                     (NAME.off with NAME.labels, one label per vertex) arrives in {} \
-                     — or start with --bootstrap-synthetic to see it work on built-in data",
-                    data.incoming().display(),
-                    data.labeled().display()
-                ));
-            }
-        }
+    if live.current().is_none() && needs_model && !has_trainer {
+        return Err(format!(
+            "no model in {}: this pipeline matches but does not train; run one that trains first \
+             (e.g. `shapeforest run pipelines/train.toml`)",
+            data.models().display()
+        ));
     }
-    Ok(RunSetup { data, live, notes })
+    let labelled = fs::read_dir(data.labeled()).map(|d| d.count()).unwrap_or(0);
+    let nothing_to_learn =
+        live.current().is_none() && labelled == 0 && stored_shapes(&data.training()).is_empty();
+    let waiting_hint = (nothing_to_learn && needs_model && spec.is_daemon()).then(|| {
+        format!(
+            "no model and no labelled shapes yet: scans wait in {} until a labelled shape \
+             (NAME.off with NAME.labels, one label per vertex) arrives in {} \
+             — or start with --bootstrap-synthetic to see it work on built-in data",
+            data.incoming().display(),
+            data.labeled().display()
+        )
+    });
+    Ok(RunSetup { data, live, notes, nothing_to_learn, waiting_hint })
 }
 
 /// Reads, prepares and runs a pipeline file (the `run` and `watch` commands). `data_dir`
@@ -157,9 +159,6 @@ pub fn run_spec(
     let data =
         DataDir::new(data_dir.map(Path::to_path_buf).unwrap_or_else(|| spec.settings.data_dir.clone()));
     let setup = prepare(spec, data)?;
-    for n in &setup.notes {
-        tracing::info!("{n}");
-    }
     before_run(&setup)?;
     let ctx = PipelineContext::with_shutdown(shutdown.unwrap_or_default());
     let pipeline = build(spec, &setup.data, setup.live.clone(), ctx)?;
