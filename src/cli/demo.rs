@@ -5,7 +5,6 @@
 //! wrote against the known ground truth.
 
 use std::{
-    fmt::Write as _,
     path::{Path, PathBuf},
     sync::Arc,
     thread,
@@ -16,9 +15,12 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use shapeforest::{
     eval::{geodesic_errors, ErrorSummary},
+    forest::labels_identity,
     geodesic::HeatParams,
     mesh::{read_mesh, write_mesh},
-    pipeline::{daemon::run_spec, latest_manifest, DataDir, PipelineSpec, RunOptions, Shutdown},
+    pipeline::{
+        daemon::run_spec, label_map_text, latest_manifest, DataDir, PipelineSpec, RunOptions, Shutdown,
+    },
     regularizer::PreparedShape,
     spectral::{SpectrumCache, SpectrumParams},
     synth::{creature_family, CreatureParams},
@@ -148,10 +150,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
 
     let staging = args.out.join(".staging");
     std::fs::create_dir_all(&staging)?;
-    let mut labels = String::with_capacity(n * 6);
-    for v in 0..n {
-        let _ = writeln!(labels, "{v}");
-    }
+    let labels = label_map_text(&labels_identity(n));
     let t0 = Instant::now();
     for (i, mesh) in fam.shapes.iter().enumerate().take(args.train) {
         drop_file(&staging, &data.labeled(), &format!("creature{i}.labels"), |p| {

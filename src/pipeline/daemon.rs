@@ -2,7 +2,7 @@
 //! the newest model, a clear word when there is nothing to learn from, the optional synthetic
 //! bootstrap), then the run.
 
-use std::{fmt::Write as _, fs, path::Path, sync::Arc};
+use std::{fs, path::Path, sync::Arc};
 
 use super::{
     actor::{PipelineContext, Shutdown},
@@ -10,9 +10,10 @@ use super::{
     graph::{PipelineReport, RunOptions},
     model::LiveModel,
     stages::load_live_model,
-    store::{atomic_write, stored_shapes, DataDir},
+    store::{atomic_write, label_map_text, stored_shapes, DataDir},
 };
 use crate::{
+    forest::labels_identity,
     geodesic::HeatParams,
     mesh::write_mesh,
     synth::{creature_family, CreatureParams},
@@ -48,10 +49,7 @@ pub fn bootstrap_synthetic(
     )
     .map_err(|e| format!("synthetic family: {e}"))?;
     let n = fam.template.n_vertices();
-    let mut labels = String::with_capacity(n * 6);
-    for v in 0..n {
-        let _ = writeln!(labels, "{v}");
-    }
+    let labels = label_map_text(&labels_identity(n));
     // Scans first: a watcher sees complete files only (written aside, then renamed in).
     let stage = data.root().join(".bootstrap");
     fs::create_dir_all(&stage).map_err(|e| format!("{}: {e}", stage.display()))?;

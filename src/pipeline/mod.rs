@@ -36,6 +36,6 @@ pub use message::{
 };
 pub use model::{LiveModel, ModelState, NoModel};
 pub use store::{
-    atomic_write, is_mesh_file, is_transient_file, label_sidecar, latest_manifest, latest_model, move_file,
-    read_labels, unique_path, DataDir, InputKind, ModelManifest, Recovery,
+    atomic_write, is_mesh_file, is_transient_file, label_map_text, label_sidecar, latest_manifest,
+    latest_model, move_file, read_labels, unique_path, DataDir, InputKind, ModelManifest, Recovery,
 };

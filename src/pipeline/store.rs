@@ -274,6 +274,25 @@ pub fn read_labels(path: &Path, n_vertices: usize) -> Result<Vec<Option<u32>>, S
     Ok(labels)
 }
 
+/// The text of a per-vertex label map as [`read_labels`] reads it: line `v` holds vertex `v`'s
+/// label, `-1` for an unlabelled vertex.
+///
+/// ```
+/// use shapeforest::pipeline::label_map_text;
+/// assert_eq!(label_map_text(&[Some(2), None, Some(0)]), "2\n-1\n0\n");
+/// ```
+pub fn label_map_text(labels: &[Option<u32>]) -> String {
+    use std::fmt::Write as _;
+    let mut text = String::with_capacity(labels.len() * 6);
+    for l in labels {
+        let _ = match l {
+            Some(l) => writeln!(text, "{l}"),
+            None => writeln!(text, "-1"),
+        };
+    }
+    text
+}
+
 /// Writes a file atomically (a temporary file in the same folder, synced, then renamed); the
 /// error names the file.
 pub fn atomic_write(path: &Path, bytes: &[u8]) -> io::Result<()> {

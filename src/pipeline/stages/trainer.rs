@@ -11,7 +11,7 @@
 //! On start, training shapes missing from the newest model (a crash between storing a shape and
 //! saving the model) trigger an update.
 
-use std::{collections::HashMap, fmt::Write as _, fs, path::Path, sync::Arc, time::Instant};
+use std::{collections::HashMap, fs, path::Path, sync::Arc, time::Instant};
 
 use serde::Deserialize;
 
@@ -24,8 +24,8 @@ use crate::{
         message::{shape_stem, Failure, Job, SpectralShape},
         model::{LiveModel, ModelState},
         store::{
-            latest_manifest, latest_model, move_file, prune_models, read_labels, save_model_version,
-            stored_shapes, DataDir, ModelManifest,
+            atomic_write, label_map_text, latest_manifest, latest_model, move_file, prune_models,
+            read_labels, save_model_version, stored_shapes, DataDir, ModelManifest,
         },
     },
     regularizer::PreparedShape,
@@ -287,16 +287,9 @@ impl TrainerSink {
             }
             _ => {
                 let labels = shape.shape.labels.as_deref().map(Vec::as_slice).unwrap_or(&[]);
-                let mut text = String::with_capacity(labels.len() * 6);
-                for l in labels {
-                    match l {
-                        Some(l) => writeln!(text, "{l}"),
-                        None => writeln!(text, "-1"),
-                    }
-                    .map_err(|e| e.to_string())?;
-                }
+                let text = label_map_text(labels);
                 let lab = dir.join(format!("{}.labels", job.name));
-                super::super::store::atomic_write(&lab, text.as_bytes()).map_err(|e| e.to_string())?;
+                atomic_write(&lab, text.as_bytes()).map_err(|e| e.to_string())?;
                 write_mesh(dir.join(format!("{}.off", job.name)), &shape.shape.mesh)
                     .map_err(|e| e.to_string())?;
                 // A claimed input without a label file (identity labels) is consumed.
