@@ -29,7 +29,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 use shapeforest::{
     eval::{
         plot_curves_svg,
-        protocol::{run_protocol, Method, ProtocolEvent, ProtocolParams, ProtocolReport, ProtocolShape},
+        protocol::{
+            run_protocol, Method, ProtocolEvent, ProtocolParams, ProtocolReport, ProtocolShape, TestTimings,
+        },
         symmetry::{
             label_symmetry_from_mirrored_truth, MirroredTruth, SymmetricFeatures, SymmetryParams,
             SymmetrySolver,
@@ -575,26 +577,17 @@ fn format_timings(report: &ProtocolReport) -> String {
     let mut s = String::new();
     let spectra: f64 = report.spectrum_s.iter().sum();
     let _ = writeln!(s, "\nspectra (100 eigenpairs, cache hits are fast): {spectra:.2} s in all");
-    let _ = writeln!(
-        s,
-        "{:<14} {:>7} {:>7} {:>7} {:>7} {:>8} {:>7} {:>8} {:>7}",
-        "test", "train", "knn-fit", "prepare", "predict", "regular.", "knn", "knn-reg", "eval-gt"
-    );
+    let _ = write!(s, "{:<14}", "test");
+    for (head, _, _) in TestTimings::default().stages() {
+        let _ = write!(s, " {head:>w$}", w = head.len().max(7));
+    }
+    s.push('\n');
     for t in &report.tests {
-        let x = &t.timings;
-        let _ = writeln!(
-            s,
-            "{:<14} {:>7.2} {:>7.2} {:>7.2} {:>7.2} {:>8.2} {:>7.2} {:>8.2} {:>7.2}",
-            report.shape_names[t.test],
-            x.train_s,
-            x.knn_fit_s,
-            x.prepare_s,
-            x.predict_s,
-            x.regularize_s,
-            x.knn_predict_s,
-            x.knn_regularize_s,
-            x.eval_fields_s
-        );
+        let _ = write!(s, "{:<14}", report.shape_names[t.test]);
+        for (head, _, secs) in t.timings.stages() {
+            let _ = write!(s, " {secs:>w$.2}", w = head.len().max(7));
+        }
+        s.push('\n');
     }
     s
 }
@@ -653,14 +646,17 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
     }
     write_file(&out.join("results.csv"), &csv)?;
 
-    let mut tcsv = String::from(
-        "test,reference,forest_reused,mean_support,n_matches,orientation_score,spectrum_s,train_s,knn_fit_s,prepare_s,predict_s,regularize_s,knn_predict_s,knn_regularize_s,eval_fields_s\n",
-    );
+    let mut tcsv =
+        String::from("test,reference,forest_reused,mean_support,n_matches,orientation_score,spectrum_s");
+    for (_, column, _) in TestTimings::default().stages() {
+        tcsv.push(',');
+        tcsv.push_str(column);
+    }
+    tcsv.push('\n');
     for t in &report.tests {
-        let x = &t.timings;
-        let _ = writeln!(
+        let _ = write!(
             tcsv,
-            "{},{},{},{:.3},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
+            "{},{},{},{:.3},{},{:.4},{:.4}",
             report.shape_names[t.test],
             report.shape_names[t.reference],
             t.forest_reused,
@@ -668,15 +664,11 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
             t.n_matches,
             t.orientation_score,
             report.spectrum_s[t.test],
-            x.train_s,
-            x.knn_fit_s,
-            x.prepare_s,
-            x.predict_s,
-            x.regularize_s,
-            x.knn_predict_s,
-            x.knn_regularize_s,
-            x.eval_fields_s
         );
+        for (_, _, secs) in t.timings.stages() {
+            let _ = write!(tcsv, ",{secs:.4}");
+        }
+        tcsv.push('\n');
     }
     write_file(&out.join("timings.csv"), &tcsv)?;
 

@@ -186,6 +186,22 @@ pub struct TestTimings {
     pub eval_fields_s: f64,
 }
 
+impl TestTimings {
+    /// Every stage as `(table heading, CSV column, seconds)`, in report order.
+    pub fn stages(&self) -> [(&'static str, &'static str, f64); 8] {
+        [
+            ("train", "train_s", self.train_s),
+            ("knn-fit", "knn_fit_s", self.knn_fit_s),
+            ("prepare", "prepare_s", self.prepare_s),
+            ("predict", "predict_s", self.predict_s),
+            ("regular.", "regularize_s", self.regularize_s),
+            ("knn", "knn_predict_s", self.knn_predict_s),
+            ("knn-reg", "knn_regularize_s", self.knn_regularize_s),
+            ("eval-gt", "eval_fields_s", self.eval_fields_s),
+        ]
+    }
+}
+
 /// The result of one test shape.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct TestResult {
