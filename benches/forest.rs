@@ -18,7 +18,7 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use shapeforest::descriptor::WksParams;
-use shapeforest::forest::{hit_ratio, labels_identity, RandomForest, TrainingSet, TrainingShape, WksKnn};
+use shapeforest::forest::{hit_ratio, labels_identity, RandomForest, TrainingSet, WksKnn};
 use shapeforest::mesh::Mesh;
 use shapeforest::spectral::{dense_spectrum, Spectrum};
 use shapeforest::synth::icosphere;
@@ -54,14 +54,10 @@ fn base_vectors(n: usize) -> Vec<f64> {
 
 fn synthetic_set(n: usize, shapes: usize) -> TrainingSet {
     let base = base_vectors(n);
-    let list = (0..shapes)
-        .map(|s| TrainingShape {
-            name: format!("synthetic{s}"),
-            spectrum: Arc::new(synthetic_spectrum(&base, n, s as u64)),
-            labels: labels_identity(n),
-        })
-        .collect();
-    TrainingSet::new(list, n).expect("valid synthetic set")
+    TrainingSet::same_indexing(
+        (0..shapes).map(|s| (format!("synthetic{s}"), Arc::new(synthetic_spectrum(&base, n, s as u64)))),
+    )
+    .expect("valid synthetic set")
 }
 
 fn bumpy_family(n: usize) -> Vec<Arc<Spectrum>> {
@@ -138,14 +134,7 @@ fn one_shot_reports() {
     // Hit ratio vs number of trees on a real (dense-spectrum) family.
     let fam = bumpy_family(6);
     let n = fam[0].n_vertices;
-    let shapes = (0..5)
-        .map(|i| TrainingShape {
-            name: format!("m{i}"),
-            spectrum: fam[i].clone(),
-            labels: labels_identity(n),
-        })
-        .collect();
-    let set = TrainingSet::new(shapes, n).expect("set");
+    let set = TrainingSet::same_indexing((0..5).map(|i| (format!("m{i}"), fam[i].clone()))).expect("set");
     let truth = labels_identity(n);
     let full = RandomForest::params().n_trees(15).seed(3).fit(&set).expect("fit");
     let knn = WksKnn::fit(&set, &WksParams::default(), full.energy_grid().range, full.k()).expect("knn");

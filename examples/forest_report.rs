@@ -10,7 +10,7 @@ use std::{path::PathBuf, sync::Arc, time::Instant};
 use anyhow::{Context, Result};
 use shapeforest::{
     descriptor::WksParams,
-    forest::{hit_ratio, labels_identity, RandomForest, TrainingSet, TrainingShape, WksKnn},
+    forest::{hit_ratio, labels_identity, RandomForest, TrainingSet, WksKnn},
     mesh::read_mesh,
     spectral::{SpectrumCache, SpectrumParams},
 };
@@ -39,10 +39,9 @@ fn main() -> Result<()> {
         let name = format!("{class}{i}");
         let (mesh, spectrum, t) = load(&name)?;
         println!("{name}: {} vertices, spectrum {t:.2} s (cached after the first run)", mesh.n_vertices());
-        shapes.push(TrainingShape { name, spectrum, labels: labels_identity(mesh.n_vertices()) });
+        shapes.push((name, spectrum));
     }
-    let n = shapes[0].labels.len();
-    let set = TrainingSet::new(shapes, n)?;
+    let set = TrainingSet::same_indexing(shapes)?;
     let (test_mesh, test_spectrum, _) = load(&test_name)?;
     let truth = labels_identity(test_mesh.n_vertices());
 

@@ -5,7 +5,7 @@ use std::{path::Path, process::Command, sync::Arc};
 
 use shapeforest::{
     eval::protocol::{run_protocol, Method, ProtocolParams, ProtocolShape},
-    forest::{labels_identity, RandomForest, TrainingSet, TrainingShape},
+    forest::{RandomForest, TrainingSet},
     mesh::{read_mesh, write_mesh},
     spectral::{compute_spectrum, SpectrumParams},
     synth::{creature_family, CreatureParams},
@@ -86,17 +86,7 @@ fn match_writes_all_outputs_and_the_map_round_trips() {
     let n = fam.template.n_vertices();
     let spectra: Vec<_> =
         fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &SpectrumParams::new(60)).unwrap())).collect();
-    let set = TrainingSet::new(
-        (0..2)
-            .map(|i| TrainingShape {
-                name: format!("s{i}"),
-                spectrum: spectra[i].clone(),
-                labels: labels_identity(n),
-            })
-            .collect(),
-        n,
-    )
-    .unwrap();
+    let set = TrainingSet::same_indexing((0..2).map(|i| (format!("s{i}"), spectra[i].clone()))).unwrap();
     let forest = RandomForest::params().n_trees(3).check().unwrap().fit(&set).unwrap();
     let model = dir.path().join("m.sfm");
     forest.save(&model).unwrap();

@@ -58,16 +58,7 @@ fn family(n: usize) -> Family {
 }
 
 fn set_of(f: &Family, ids: &[usize]) -> TrainingSet {
-    let n = f.base.n_vertices();
-    let shapes = ids
-        .iter()
-        .map(|&i| TrainingShape {
-            name: format!("member{i}"),
-            spectrum: f.spectra[i].clone(),
-            labels: labels_identity(n),
-        })
-        .collect();
-    TrainingSet::new(shapes, n).unwrap()
+    TrainingSet::same_indexing(ids.iter().map(|&i| (format!("member{i}"), f.spectra[i].clone()))).unwrap()
 }
 
 /// Fraction of vertices whose MAP label lies within `radius` (Euclidean, on the base shape) of

@@ -283,7 +283,7 @@ fn failures_are_values_with_a_kind() {
 #[test]
 fn the_newest_model_that_loads_is_used_and_bad_versions_are_named() {
     use shapeforest::{
-        forest::{labels_identity, RandomForest, TrainingSet, TrainingShape},
+        forest::{RandomForest, TrainingSet},
         pipeline::store::{latest_model, prune_models, save_model_version, ModelManifest},
         spectral::{compute_spectrum, SpectrumParams},
         synth::{creature_family, CreatureParams},
@@ -291,17 +291,11 @@ fn the_newest_model_that_loads_is_used_and_bad_versions_are_named() {
     let fam =
         creature_family(&CreatureParams { target_vertices: 800, seed: 4, ..Default::default() }, 2).unwrap();
     let n = fam.template.n_vertices();
-    let shapes = fam
-        .shapes
-        .iter()
-        .enumerate()
-        .map(|(i, m)| TrainingShape {
-            name: format!("s{i}"),
-            spectrum: Arc::new(compute_spectrum(m, &SpectrumParams::new(30)).unwrap()),
-            labels: labels_identity(n),
-        })
-        .collect();
-    let set = TrainingSet::new(shapes, n).unwrap();
+    let set =
+        TrainingSet::same_indexing(fam.shapes.iter().enumerate().map(|(i, m)| {
+            (format!("s{i}"), Arc::new(compute_spectrum(m, &SpectrumParams::new(30)).unwrap()))
+        }))
+        .unwrap();
     let forest = RandomForest::params().n_trees(2).check().unwrap().fit(&set).unwrap();
     let tmp = tempfile::tempdir().unwrap();
     let manifest = |v: u64| ModelManifest {

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use shapeforest::{
     eval::{geodesic_errors, ErrorSummary},
-    forest::{labels_identity, RandomForest, TrainingSet, TrainingShape},
+    forest::{RandomForest, TrainingSet},
     geodesic::HeatParams,
     regularizer::{regularize, PreparedShape, RegularizerParams},
     spectral::{compute_spectrum, SpectrumParams},
@@ -19,17 +19,7 @@ fn regularised_map_is_accurate_and_consistently_oriented() {
     let n = fam.template.n_vertices();
     let spectra: Vec<_> =
         fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &SpectrumParams::new(60)).unwrap())).collect();
-    let set = TrainingSet::new(
-        (0..5)
-            .map(|i| TrainingShape {
-                name: format!("s{i}"),
-                spectrum: spectra[i].clone(),
-                labels: labels_identity(n),
-            })
-            .collect(),
-        n,
-    )
-    .unwrap();
+    let set = TrainingSet::same_indexing((0..5).map(|i| (format!("s{i}"), spectra[i].clone()))).unwrap();
     let forest = RandomForest::params().n_trees(8).seed(2).check().unwrap().fit(&set).unwrap();
     let prediction = forest.predict(&spectra[5]).unwrap();
 

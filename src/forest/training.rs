@@ -54,6 +54,24 @@ impl TrainingSet {
         Ok(set)
     }
 
+    /// A set of shapes sharing one vertex indexing (a TOSCA or SCAPE class, a synthetic
+    /// family): label = vertex index, and `n_labels` is the first shape's vertex count. A shape
+    /// with another vertex count is rejected by name, as in [`TrainingSet::new`].
+    pub fn same_indexing(
+        shapes: impl IntoIterator<Item = (String, Arc<Spectrum>)>,
+    ) -> Result<Self, ForestError> {
+        let shapes: Vec<(String, Arc<Spectrum>)> = shapes.into_iter().collect();
+        let Some(n) = shapes.first().map(|s| s.1.n_vertices) else {
+            return Err(ForestError::EmptyTrainingSet { rejected: "no shape was given".into() });
+        };
+        let labels = labels_identity(n);
+        let shapes = shapes
+            .into_iter()
+            .map(|(name, spectrum)| TrainingShape { name, spectrum, labels: labels.clone() })
+            .collect();
+        Self::new(shapes, n)
+    }
+
     /// Like [`TrainingSet::new`], also returning each rejected shape with its error.
     pub fn new_with_rejections(
         shapes: Vec<TrainingShape>,
