@@ -7,8 +7,15 @@
 //!    by the heat method, normalised by √area;
 //! 4. game-theoretic matching picks a sparse, geodesically consistent subset with weights ω;
 //! 5. the regularised functional map (eq. 11.19) with the distance maps of the matched pairs;
-//! 6. conversion to a point-to-point map (nearest neighbour in the spectral embedding), and an
-//!    optional ZoomOut refinement, off by default and reported separately.
+//! 6. conversion to a point-to-point map: among each vertex's forest candidates, the one whose
+//!    geodesic distances to the anchors agree best with the vertex's own (plus the nearest
+//!    neighbour in the spectral embedding, reported separately);
+//! 7. anchor growth (on by default): the game keeps only a handful of matches (often ~10 of
+//!    50 samples), too few to place every vertex; a denser set of farthest-point samples is
+//!    mapped through the current map, the pairs that agree with the others are kept as
+//!    anchors, and every vertex is placed again with locality-weighted distances to them,
+//!    a few rounds (see [`AnchorGrowthParams`]);
+//! 8. an optional ZoomOut refinement, off by default and reported separately.
 //!
 //! Shapes are prepared once ([`PreparedShape`]: mesh, spectrum, heat-method factorisation), so a
 //! reference serves many test shapes.
@@ -69,6 +76,52 @@ pub struct ZoomOutParams {
     pub step: usize,
 }
 
+/// Anchor growth: densifies the game's sparse matches into many geodesically consistent ones
+/// before the final placement of every vertex.
+///
+/// Each round maps `samples` Euclidean farthest-point samples of the test shape through the
+/// current map, scores each pair by the median disagreement of its distances to the other
+/// pairs (`|d_M(s_i, s_j) − d_R(t_i, t_j)|`, in √area units), keeps the `keep` fraction that
+/// agrees best, and re-places every test vertex among its forest candidates by
+/// `Σ_j w_j(m) |d_M(m, s_j) − d_R(r, t_j)|` with `w_j(m) = exp(−d_M(m, s_j) / locality)`, so that
+/// nearby anchors, least affected by non-isometric distortion, count most.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AnchorGrowthParams {
+    /// Farthest-point samples mapped per round. Default 200.
+    pub samples: usize,
+    /// Fraction of the most consistent sample pairs kept as anchors, in (0, 1]. Default 0.7.
+    pub keep: f64,
+    /// Locality scale of the anchor weights (√area units; 0: uniform weights). Default 0.2.
+    pub locality: f64,
+    /// Rounds. Default 3.
+    pub rounds: usize,
+}
+
+impl Default for AnchorGrowthParams {
+    fn default() -> Self {
+        Self { samples: 200, keep: 0.7, locality: 0.2, rounds: 3 }
+    }
+}
+
+impl AnchorGrowthParams {
+    /// Checks the settings, naming the broken rule.
+    pub fn check(&self) -> Result<(), String> {
+        if self.samples < 3 {
+            return Err(format!("growth_samples = {}: at least 3 are needed", self.samples));
+        }
+        if !(self.keep > 0.0 && self.keep <= 1.0) {
+            return Err(format!("growth_keep = {}: must be in (0, 1]", self.keep));
+        }
+        if !(self.locality >= 0.0 && self.locality.is_finite()) {
+            return Err(format!("growth_locality = {}: must be finite and ≥ 0", self.locality));
+        }
+        if self.rounds == 0 {
+            return Err("growth_rounds = 0: at least 1 (turn growth off with growth_samples = 0)".into());
+        }
+        Ok(())
+    }
+}
+
 /// Parameters of the regulariser.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RegularizerParams {
@@ -82,6 +135,8 @@ pub struct RegularizerParams {
     pub fmap: FmapParams,
     /// Heat-method settings for the distance maps.
     pub heat: HeatParams,
+    /// Anchor growth before the final placement (default on; `None`: the game's anchors only).
+    pub growth: Option<AnchorGrowthParams>,
     /// Optional ZoomOut refinement after the solve. Default off.
     pub zoomout: Option<ZoomOutParams>,
 }
@@ -94,6 +149,7 @@ impl Default for RegularizerParams {
             matcher: GameMatcherParams::default(),
             fmap: FmapParams::default(),
             heat: HeatParams::default(),
+            growth: Some(AnchorGrowthParams::default()),
             zoomout: None,
         }
     }
@@ -123,17 +179,26 @@ pub struct RegularizerTimings {
     pub fmap_s: f64,
     /// Point-to-point conversion.
     pub point_map_s: f64,
+    /// Anchor growth (0 when off).
+    #[serde(default)]
+    pub growth_s: f64,
     /// ZoomOut refinement (0 when off).
     pub zoomout_s: f64,
 }
 
 /// The result of regularising one prediction.
 pub struct DenseMap {
-    /// Test vertex → reference vertex (the regulariser's output): among the forest's candidates
-    /// of each vertex, the one whose geodesic distances to the matched anchors agree best with
-    /// the vertex's own (`Σ_j ω_j |d_M(m, p_j) − d_R(r, q_j)|`, the pointwise form of the
-    /// distance-map term of eq. 11.19); vertices without candidates take the functional map's.
+    /// Test vertex → reference vertex (the regulariser's output): [`DenseMap::anchor_map`]
+    /// after anchor growth (the same map when growth is off).
     pub map: Vec<usize>,
+    /// Test vertex → reference vertex placed by the game's anchors alone: among the forest's
+    /// candidates of each vertex, the one whose geodesic distances to the matched anchors agree
+    /// best with the vertex's own (`Σ_j ω_j |d_M(m, p_j) − d_R(r, q_j)|`, the pointwise form of
+    /// the distance-map term of eq. 11.19); vertices without candidates take the functional
+    /// map's.
+    pub anchor_map: Vec<usize>,
+    /// Anchors used in the last round of growth (0 when growth is off).
+    pub grown_anchors: usize,
     /// Test vertex → reference vertex: among the forest's candidates, the one nearest to the
     /// regularised functional map's spectral embedding.
     pub spectral_map: Vec<usize>,
@@ -234,6 +299,9 @@ fn check_inputs(
 ) -> Result<(), Error> {
     params.matcher.check()?;
     params.fmap.check()?;
+    if let Some(g) = &params.growth {
+        g.check().map_err(|reason| fmap::FmapError::InvalidParameter { name: "growth", reason })?;
+    }
     let n_ref = reference.mesh.n_vertices();
     if prediction.n_vertices() != test.mesh.n_vertices() {
         return Err(fmap::FmapError::SizeMismatch(format!(
@@ -431,8 +499,17 @@ pub fn dense_map(
     let fmap_map = fmap::point_to_point(&test.spectrum, &reference.spectrum, c.as_ref())?;
     let spectral_map =
         fmap::point_to_point_restricted(&test.spectrum, &reference.spectrum, c.as_ref(), &posterior)?;
-    let map = anchor_consistent_map(a_fields, b_fields, &weights, &posterior, &fmap_map);
+    let anchor_map = anchor_consistent_map(a_fields, b_fields, &weights, &posterior, &fmap_map);
     timings.point_map_s = t0.elapsed().as_secs_f64();
+    let (map, grown_anchors) = match &params.growth {
+        Some(g) if !weights.is_empty() => {
+            let t0 = Instant::now();
+            let grown = grow_anchors(test, reference, &posterior, anchor_map.clone(), g)?;
+            timings.growth_s = t0.elapsed().as_secs_f64();
+            grown
+        }
+        _ => (anchor_map.clone(), 0),
+    };
     let refined_map = match params.zoomout {
         Some(z) if kt == kr => {
             let t0 = Instant::now();
@@ -448,6 +525,8 @@ pub fn dense_map(
     let forest_map = prediction.map_labels().into_iter().map(|l| l.map(|l| posterior.vertex(l))).collect();
     Ok(DenseMap {
         map,
+        anchor_map,
+        grown_anchors,
         spectral_map,
         fmap_map,
         refined_map,
@@ -490,6 +569,98 @@ fn anchor_consistent_map(
             best.1
         })
         .collect()
+}
+
+/// Anchor growth (see [`AnchorGrowthParams`]): returns the final map and the number of anchors
+/// of the last round.
+fn grow_anchors(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    posterior: &LabelledPosterior<'_>,
+    start: Vec<usize>,
+    p: &AnchorGrowthParams,
+) -> Result<(Vec<usize>, usize), Error> {
+    use rayon::prelude::*;
+    let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
+    let samples = farthest_point_sampling_euclidean(&test.mesh, p.samples.min(n_t), None)?;
+    let s = samples.len();
+    if s < 3 {
+        return Ok((start, 0));
+    }
+    let (ts, rs) = (1.0 / test.sqrt_area(), 1.0 / reference.sqrt_area());
+    // Test-side fields from the samples, normalised, as f32 columns.
+    let a_fields = test.heat.distances_from_many(&samples)?;
+    let a_col = |j: usize| a_fields.col(j);
+    // Reference-side fields, computed once per distinct target and dropped when unused.
+    let mut ref_cols: std::collections::HashMap<usize, Vec<f32>> = std::collections::HashMap::new();
+    let mut map = start;
+    let n_keep = ((s as f64 * p.keep).ceil() as usize).clamp(3, s);
+    let mut used = 0;
+    for _ in 0..p.rounds {
+        let targets: Vec<usize> = samples.iter().map(|&v| map[v]).collect();
+        let mut missing: Vec<usize> = targets.iter().copied().filter(|t| !ref_cols.contains_key(t)).collect();
+        missing.sort_unstable();
+        missing.dedup();
+        if !missing.is_empty() {
+            let f = reference.heat.distances_from_many(&missing)?;
+            for (j, &t) in missing.iter().enumerate() {
+                ref_cols.insert(t, f.col(j).iter().map(|&d| (d * rs) as f32).collect());
+            }
+        }
+        ref_cols.retain(|t, _| targets.contains(t));
+        // Consistency of each pair with the others: median distance disagreement.
+        let mut consistency: Vec<(f64, usize)> = (0..s)
+            .into_par_iter()
+            .map(|i| {
+                let ci = &ref_cols[&targets[i]];
+                let mut d: Vec<f64> = (0..s)
+                    .filter(|&j| j != i)
+                    .map(|j| (a_col(i)[samples[j]] * ts - ci[targets[j]] as f64).abs())
+                    .collect();
+                let mid = d.len() / 2;
+                d.select_nth_unstable_by(mid, f64::total_cmp);
+                (d[mid], i)
+            })
+            .collect();
+        consistency.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let kept: Vec<usize> = consistency[..n_keep].iter().map(|c| c.1).collect();
+        let k = kept.len();
+        // Row-major tables: test distances and weights (n_t × k), reference distances (n_r × k).
+        let mut a = vec![0f32; n_t * k];
+        let mut w = vec![0f32; n_t * k];
+        for (j, &i) in kept.iter().enumerate() {
+            let col = a_col(i);
+            for v in 0..n_t {
+                let d = col[v] * ts;
+                a[v * k + j] = d as f32;
+                w[v * k + j] = if p.locality > 0.0 { (-d / p.locality).exp() as f32 } else { 1.0 };
+            }
+        }
+        let mut b = vec![0f32; n_r * k];
+        for (j, &i) in kept.iter().enumerate() {
+            let col = &ref_cols[&targets[i]];
+            for r in 0..n_r {
+                b[r * k + j] = col[r];
+            }
+        }
+        map = (0..n_t)
+            .into_par_iter()
+            .map(|m| {
+                let (am, wm) = (&a[m * k..(m + 1) * k], &w[m * k..(m + 1) * k]);
+                let mut best = (f32::INFINITY, map[m]);
+                posterior.for_each_entry(m, &mut |r, _| {
+                    let br = &b[r * k..(r + 1) * k];
+                    let cost: f32 = am.iter().zip(wm).zip(br).map(|((x, w), y)| w * (x - y).abs()).sum();
+                    if cost < best.0 {
+                        best = (cost, r);
+                    }
+                });
+                best.1
+            })
+            .collect();
+        used = k;
+    }
+    Ok((map, used))
 }
 
 /// Log-energies of the band-pass functions behind the orientation descriptors: five, spread

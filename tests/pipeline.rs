@@ -70,6 +70,12 @@ input = "nowhere"
 top_k = 0
 
 [[stage]]
+name = "dense"
+type = "fmap"
+input = "match"
+growth_keep = 1.5
+
+[[stage]]
 name = "read"
 type = "teleport"
 input = "in"
@@ -82,6 +88,7 @@ input = "in"
         "stage `spectra` (spectral): unknown field `kk`",
         "stage `forest`: takes descriptor but `read` emits shape",
         "stage `match` (matcher): top_k = 0",
+        "stage `dense` (fmap): growth_keep = 1.5: must be in (0, 1]",
         "unknown stage type `teleport`",
         "stage `read`: the name is used twice",
     ] {

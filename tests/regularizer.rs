@@ -58,3 +58,50 @@ fn regularised_map_is_accurate_and_consistently_oriented() {
     assert_eq!(tests.len(), dense.matches.len());
     assert!(dense.matches.len() >= 8, "only {} matches", dense.matches.len());
 }
+
+#[test]
+fn anchor_growth_places_vertices_at_least_as_well_as_the_games_few_anchors() {
+    let fam =
+        creature_family(&CreatureParams { target_vertices: 2000, seed: 7, ..Default::default() }, 6).unwrap();
+    let n = fam.template.n_vertices();
+    let spectra: Vec<_> =
+        fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &SpectrumParams::new(60)).unwrap())).collect();
+    let set = TrainingSet::same_indexing((1..6).map(|i| (format!("s{i}"), spectra[i].clone()))).unwrap();
+    let forest = RandomForest::params().n_trees(8).seed(3).check().unwrap().fit(&set).unwrap();
+    let prediction = forest.predict(&spectra[0]).unwrap();
+    let prepare = |i: usize| {
+        PreparedShape::new(Arc::new(fam.shapes[i].clone()), spectra[i].clone(), HeatParams::default())
+            .unwrap()
+    };
+    let (test, reference) = (prepare(0), prepare(1));
+    let dense = regularize(&test, &reference, &prediction, None, &RegularizerParams::default()).unwrap();
+    let off = RegularizerParams { growth: None, ..Default::default() };
+    let plain = regularize(&test, &reference, &prediction, None, &off).unwrap();
+    // Without growth the output is the game-anchor map, and growth starts from that same map.
+    assert_eq!(plain.map, plain.anchor_map);
+    assert_eq!(plain.anchor_map, dense.anchor_map);
+    assert_eq!(plain.grown_anchors, 0);
+    assert!(
+        dense.grown_anchors > dense.matches.len(),
+        "{} grown vs {}",
+        dense.grown_anchors,
+        dense.matches.len()
+    );
+    assert!(dense.timings.growth_s > 0.0);
+
+    let evaluated: Vec<usize> = (0..n).step_by(3).collect();
+    let fields = reference.heat.distances_from_many(&evaluated).unwrap();
+    let area = reference.mesh.surface_area();
+    let strict = |map: &[usize]| {
+        ErrorSummary::of(&geodesic_errors(map, &evaluated, fields.as_ref(), None, area).unwrap().0)
+    };
+    let (grown, anchors) = (strict(&dense.map), strict(&dense.anchor_map));
+    assert!(grown.within_005 > 0.9, "grown map {grown:?}");
+    assert!(grown.within_005 >= anchors.within_005 - 0.01, "grown {grown:?} vs game anchors {anchors:?}");
+    assert!(grown.mean <= anchors.mean * 1.05, "grown {grown:?} vs game anchors {anchors:?}");
+    // Every vertex stays among its forest candidates.
+    for (m, &r) in dense.map.iter().enumerate() {
+        let (labels, _) = prediction.posterior(m);
+        assert!(labels.is_empty() || labels.contains(&(r as u32)), "vertex {m} left its candidates");
+    }
+}

@@ -12,7 +12,9 @@ use crate::{
         actor::Stage,
         message::{Failure, Job, MatchedShape, PredictedShape, SparselyMatched},
     },
-    regularizer::{dense_map, sparse_matches, PreparedShape, RegularizerParams, ZoomOutParams},
+    regularizer::{
+        dense_map, sparse_matches, AnchorGrowthParams, PreparedShape, RegularizerParams, ZoomOutParams,
+    },
 };
 
 /// Settings of `matcher`.
@@ -62,6 +64,32 @@ pub struct FmapConfig {
     /// ZoomOut refinement to this basis size (0: off). Default 0.
     #[serde(default)]
     pub zoomout_to: usize,
+    /// Anchor growth: farthest-point samples mapped per round (0: off, the game's anchors
+    /// only). Default 200.
+    #[serde(default = "default_growth_samples")]
+    pub growth_samples: usize,
+    /// Anchor growth: fraction of the most consistent pairs kept. Default 0.7.
+    #[serde(default = "default_growth_keep")]
+    pub growth_keep: f64,
+    /// Anchor growth: locality of the anchor weights (√area units, 0: uniform). Default 0.2.
+    #[serde(default = "default_growth_locality")]
+    pub growth_locality: f64,
+    /// Anchor growth: rounds. Default 3.
+    #[serde(default = "default_growth_rounds")]
+    pub growth_rounds: usize,
+}
+
+fn default_growth_samples() -> usize {
+    AnchorGrowthParams::default().samples
+}
+fn default_growth_keep() -> f64 {
+    AnchorGrowthParams::default().keep
+}
+fn default_growth_locality() -> f64 {
+    AnchorGrowthParams::default().locality
+}
+fn default_growth_rounds() -> usize {
+    AnchorGrowthParams::default().rounds
 }
 
 fn default_basis() -> usize {
@@ -73,7 +101,16 @@ fn default_one() -> f64 {
 
 impl Default for FmapConfig {
     fn default() -> Self {
-        Self { basis: default_basis(), match_weight: 1.0, commutativity: 0.0, zoomout_to: 0 }
+        Self {
+            basis: default_basis(),
+            match_weight: 1.0,
+            commutativity: 0.0,
+            zoomout_to: 0,
+            growth_samples: default_growth_samples(),
+            growth_keep: default_growth_keep(),
+            growth_locality: default_growth_locality(),
+            growth_rounds: default_growth_rounds(),
+        }
     }
 }
 
@@ -86,6 +123,12 @@ pub fn regularizer_params(m: &MatcherConfig, f: &FmapConfig) -> RegularizerParam
     p.fmap.match_weight = f.match_weight;
     p.fmap.commutativity = f.commutativity;
     p.zoomout = (f.zoomout_to > 0).then_some(ZoomOutParams { k_final: f.zoomout_to, step: 5 });
+    p.growth = (f.growth_samples > 0).then_some(AnchorGrowthParams {
+        samples: f.growth_samples,
+        keep: f.growth_keep,
+        locality: f.growth_locality,
+        rounds: f.growth_rounds,
+    });
     p
 }
 
@@ -98,6 +141,9 @@ pub fn check_regularizer(p: &RegularizerParams) -> Result<(), String> {
         return Err("top_k = 0: at least one candidate per sample is needed".into());
     }
     p.matcher.check().map_err(|e| e.to_string())?;
+    if let Some(g) = &p.growth {
+        g.check()?;
+    }
     p.fmap.check().map_err(|e| e.to_string())
 }
 
