@@ -84,7 +84,9 @@ pub struct ZoomOutParams {
 /// pairs (`|d_M(s_i, s_j) − d_R(t_i, t_j)|`, in √area units), keeps the `keep` fraction that
 /// agrees best, and re-places every test vertex among its forest candidates by
 /// `Σ_j w_j(m) |d_M(m, s_j) − d_R(r, t_j)|` with `w_j(m) = exp(−d_M(m, s_j) / locality)`, so that
-/// nearby anchors, least affected by non-isometric distortion, count most.
+/// nearby anchors, least affected by non-isometric distortion, count most. The last placement
+/// is smoothed: a vertex's choice also pays for landing far from where its mesh neighbours
+/// land (`smoothness`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AnchorGrowthParams {
     /// Farthest-point samples mapped per round. Default 200.
@@ -95,11 +97,17 @@ pub struct AnchorGrowthParams {
     pub locality: f64,
     /// Rounds. Default 3.
     pub rounds: usize,
+    /// Weight of the smoothness term of the final placement: the mean distance (√area units)
+    /// on the reference between a vertex's placement and its mesh neighbours' (0: off).
+    /// Default 2.
+    pub smoothness: f64,
+    /// At most this many sweeps of the smoothing. Default 10.
+    pub smoothing_rounds: usize,
 }
 
 impl Default for AnchorGrowthParams {
     fn default() -> Self {
-        Self { samples: 200, keep: 0.7, locality: 0.2, rounds: 3 }
+        Self { samples: 200, keep: 0.7, locality: 0.2, rounds: 3, smoothness: 2.0, smoothing_rounds: 10 }
     }
 }
 
@@ -114,6 +122,9 @@ impl AnchorGrowthParams {
         }
         if !(self.locality >= 0.0 && self.locality.is_finite()) {
             return Err(format!("growth_locality = {}: must be finite and ≥ 0", self.locality));
+        }
+        if !(self.smoothness >= 0.0 && self.smoothness.is_finite()) {
+            return Err(format!("growth_smoothness = {}: must be finite and ≥ 0", self.smoothness));
         }
         if self.rounds == 0 {
             return Err("growth_rounds = 0: at least 1 (turn growth off with growth_samples = 0)".into());
@@ -596,7 +607,7 @@ fn grow_anchors(
     let mut map = start;
     let n_keep = ((s as f64 * p.keep).ceil() as usize).clamp(3, s);
     let mut used = 0;
-    for _ in 0..p.rounds {
+    for round in 0..p.rounds {
         let targets: Vec<usize> = samples.iter().map(|&v| map[v]).collect();
         let mut missing: Vec<usize> = targets.iter().copied().filter(|t| !ref_cols.contains_key(t)).collect();
         missing.sort_unstable();
@@ -643,24 +654,112 @@ fn grow_anchors(
                 b[r * k + j] = col[r];
             }
         }
-        map = (0..n_t)
+        let last = round + 1 == p.rounds;
+        // Each vertex's candidates with their cost (mean locality-weighted disagreement, in
+        // √area units); the cheapest is the new placement. The last round keeps the table for
+        // the smoothing below.
+        let placed: Vec<(usize, Vec<(u32, f32)>)> = (0..n_t)
             .into_par_iter()
             .map(|m| {
                 let (am, wm) = (&a[m * k..(m + 1) * k], &w[m * k..(m + 1) * k]);
+                let norm = 1.0 / wm.iter().sum::<f32>().max(f32::MIN_POSITIVE);
                 let mut best = (f32::INFINITY, map[m]);
+                let mut table = Vec::new();
                 posterior.for_each_entry(m, &mut |r, _| {
                     let br = &b[r * k..(r + 1) * k];
-                    let cost: f32 = am.iter().zip(wm).zip(br).map(|((x, w), y)| w * (x - y).abs()).sum();
+                    let cost: f32 =
+                        am.iter().zip(wm).zip(br).map(|((x, w), y)| w * (x - y).abs()).sum::<f32>() * norm;
                     if cost < best.0 {
                         best = (cost, r);
                     }
+                    if last {
+                        table.push((r as u32, cost));
+                    }
                 });
-                best.1
+                (best.1, table)
             })
             .collect();
+        map = placed.iter().map(|p| p.0).collect();
+        if last && p.smoothness > 0.0 && p.smoothing_rounds > 0 {
+            let table: Vec<Vec<(u32, f32)>> = placed.into_iter().map(|p| p.1).collect();
+            map = smooth_placement(&test.mesh, &reference.mesh, reference.sqrt_area(), &table, map, p);
+        }
         used = k;
     }
     Ok((map, used))
+}
+
+/// Smoothing of the final placement (iterated conditional modes): each test vertex takes the
+/// candidate minimising its anchor cost plus `smoothness` times the mean Euclidean distance
+/// (√area units) on the reference to where its mesh neighbours are placed, all vertices at
+/// once, until nothing changes or `smoothing_rounds` have run. It removes isolated
+/// misplacements that the anchors alone cannot tell apart.
+fn smooth_placement(
+    test: &Mesh,
+    reference: &Mesh,
+    ref_sqrt_area: f64,
+    table: &[Vec<(u32, f32)>],
+    mut map: Vec<usize>,
+    p: &AnchorGrowthParams,
+) -> Vec<usize> {
+    use rayon::prelude::*;
+    let n = test.n_vertices();
+    // Vertex neighbours (CSR) from the faces.
+    let mut degree = vec![0usize; n + 1];
+    for f in &test.faces {
+        for &v in f {
+            degree[v + 1] += 2;
+        }
+    }
+    for v in 0..n {
+        degree[v + 1] += degree[v];
+    }
+    let mut fill = degree.clone();
+    let mut nbrs = vec![0usize; degree[n]];
+    for f in &test.faces {
+        for (x, y) in [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])] {
+            nbrs[fill[x]] = y;
+            fill[x] += 1;
+            nbrs[fill[y]] = x;
+            fill[y] += 1;
+        }
+    }
+    let pos = &reference.vertices;
+    let scale = p.smoothness / ref_sqrt_area.max(f64::MIN_POSITIVE);
+    for _ in 0..p.smoothing_rounds {
+        let next: Vec<usize> = (0..n)
+            .into_par_iter()
+            .map(|m| {
+                let nb = &nbrs[degree[m]..degree[m + 1]];
+                if table[m].len() < 2 || nb.is_empty() {
+                    return map[m];
+                }
+                let inv = scale / nb.len() as f64;
+                let mut best = (f64::INFINITY, map[m]);
+                for &(r, c) in &table[m] {
+                    let x = pos[r as usize];
+                    let spread: f64 = nb
+                        .iter()
+                        .map(|&q| {
+                            let y = pos[map[q]];
+                            ((x[0] - y[0]).powi(2) + (x[1] - y[1]).powi(2) + (x[2] - y[2]).powi(2)).sqrt()
+                        })
+                        .sum();
+                    let total = c as f64 + inv * spread;
+                    if total < best.0 {
+                        best = (total, r as usize);
+                    }
+                }
+                best.1
+            })
+            .collect();
+        let changed = next.iter().zip(&map).any(|(a, b)| a != b);
+        map = next;
+        if !changed {
+            break;
+        }
+    }
+    map
 }
 
 /// Log-energies of the band-pass functions behind the orientation descriptors: five, spread

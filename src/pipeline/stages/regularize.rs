@@ -77,6 +77,10 @@ pub struct FmapConfig {
     /// Anchor growth: rounds. Default 3.
     #[serde(default = "default_growth_rounds")]
     pub growth_rounds: usize,
+    /// Anchor growth: weight of the neighbour-smoothness term of the final placement (0: off).
+    /// Default 2.
+    #[serde(default = "default_growth_smoothness")]
+    pub growth_smoothness: f64,
 }
 
 fn default_growth_samples() -> usize {
@@ -90,6 +94,9 @@ fn default_growth_locality() -> f64 {
 }
 fn default_growth_rounds() -> usize {
     AnchorGrowthParams::default().rounds
+}
+fn default_growth_smoothness() -> f64 {
+    AnchorGrowthParams::default().smoothness
 }
 
 fn default_basis() -> usize {
@@ -110,6 +117,7 @@ impl Default for FmapConfig {
             growth_keep: default_growth_keep(),
             growth_locality: default_growth_locality(),
             growth_rounds: default_growth_rounds(),
+            growth_smoothness: default_growth_smoothness(),
         }
     }
 }
@@ -128,6 +136,8 @@ pub fn regularizer_params(m: &MatcherConfig, f: &FmapConfig) -> RegularizerParam
         keep: f.growth_keep,
         locality: f.growth_locality,
         rounds: f.growth_rounds,
+        smoothness: f.growth_smoothness,
+        ..Default::default()
     });
     p
 }
