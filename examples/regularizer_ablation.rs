@@ -7,7 +7,8 @@
 //! - the regularised functional map's point map (nearest neighbour in the spectral embedding);
 //! - the same restricted to the forest's candidates;
 //! - placement by the game's anchors alone (the regulariser before growth);
-//! - anchor growth without, then with, the smoothing of the final placement (the default);
+//! - anchor growth by distances alone, then with the smoothing of the final placement, then
+//!   with the orientation term and the re-oriented second run (the default);
 //! - the oracle: the best candidate in the forest's support, the bound of any placement that
 //!   keeps to the candidates.
 //!
@@ -163,18 +164,21 @@ fn main() -> Result<()> {
         Ok((dense, t0.elapsed().as_secs_f64()))
     };
     let (plain, plain_s) = run(&RegularizerParams { growth: None, ..Default::default() })?;
-    let no_smoothing = RegularizerParams {
-        growth: Some(AnchorGrowthParams { smoothness: 0.0, ..Default::default() }),
-        ..Default::default()
-    };
-    let (grown, grown_s) = run(&no_smoothing)?;
+    let growth = |g: AnchorGrowthParams| RegularizerParams { growth: Some(g), ..Default::default() };
+    let distances_only =
+        AnchorGrowthParams { smoothness: 0.0, orientation: 0.0, reorient: 0.0, ..Default::default() };
+    let (grown, grown_s) = run(&growth(distances_only))?;
+    let (smoothed, smoothed_s) = run(&growth(AnchorGrowthParams { smoothness: 2.0, ..distances_only }))?;
     let (full, full_s) = run(&RegularizerParams::default())?;
     println!(
-        "{} game anchors ({} within 0.05 of the truth), {} grown anchors; mean forest support {:.1}",
+        "{} game anchors ({} within 0.05 of the truth), {} grown anchors; mean forest support {:.1}; \
+         dense orientation agreement {:.3}{}",
         full.matches.len(),
         full.matches.iter().filter(|m| fields_distance(&solver, m.test, m.reference, area) <= 0.05).count(),
         full.grown_anchors,
-        prediction.mean_support()
+        prediction.mean_support(),
+        full.dense_orientation.unwrap_or(f64::NAN),
+        if full.reoriented { " (the re-oriented run won)" } else { "" }
     );
     println!("\n| map | ≤ 0.05 | ≤ 0.10 | mean | flips allowed ≤ 0.05 | regulariser (s) |");
     println!("|---|---:|---:|---:|---:|---:|");
@@ -183,8 +187,9 @@ fn main() -> Result<()> {
     row("regularised fmap, spectral nearest neighbour", &plain.fmap_map, None)?;
     row("regularised fmap, among the forest's candidates", &plain.spectral_map, None)?;
     row("game anchors only", &plain.map, Some(plain_s))?;
-    row("anchor growth, no smoothing", &grown.map, Some(grown_s))?;
-    row("anchor growth + smoothing (default)", &full.map, Some(full_s))?;
+    row("anchor growth, distances only", &grown.map, Some(grown_s))?;
+    row("+ smoothing", &smoothed.map, Some(smoothed_s))?;
+    row("+ orientation term and re-oriented run (default)", &full.map, Some(full_s))?;
     // Oracle: the candidate nearest to the truth.
     let oracle: Vec<usize> = (0..n)
         .map(|m| {

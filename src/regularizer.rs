@@ -86,7 +86,9 @@ pub struct ZoomOutParams {
 /// `Σ_j w_j(m) |d_M(m, s_j) − d_R(r, t_j)|` with `w_j(m) = exp(−d_M(m, s_j) / locality)`, so that
 /// nearby anchors, least affected by non-isometric distortion, count most. The last placement
 /// is smoothed: a vertex's choice also pays for landing far from where its mesh neighbours
-/// land (`smoothness`).
+/// land (`smoothness`), and a candidate whose orientation descriptor disagrees pays
+/// `orientation`. A second run whose first round is placed by orientation (`reorient`) guards
+/// against a mirrored set of game anchors; the better oriented of the two maps is kept.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AnchorGrowthParams {
     /// Farthest-point samples mapped per round. Default 200.
@@ -103,11 +105,32 @@ pub struct AnchorGrowthParams {
     pub smoothness: f64,
     /// At most this many sweeps of the smoothing. Default 10.
     pub smoothing_rounds: usize,
+    /// Weight of the orientation term of every placement: a candidate pays
+    /// `orientation · (1 − cos)/2`, `cos` the agreement of the orientation descriptors
+    /// `⟨n, ∇f × ∇g⟩` (which change sign under a mirror image) at the vertex and at the
+    /// candidate. Default 0.01 (√area units, like the distance cost).
+    pub orientation: f64,
+    /// Orientation weight of the first round of a second growth run (0: no second run). The
+    /// game's anchors may be a mirror image of the reference, whole or in part, which distances
+    /// alone cannot tell from the true map on a symmetric shape; the second run first puts
+    /// every vertex on the side its orientation descriptor says, then grows as usual, and of
+    /// the two maps the one whose orientation descriptors agree best over all vertices is kept.
+    /// Default 1.
+    pub reorient: f64,
 }
 
 impl Default for AnchorGrowthParams {
     fn default() -> Self {
-        Self { samples: 200, keep: 0.7, locality: 0.2, rounds: 3, smoothness: 2.0, smoothing_rounds: 10 }
+        Self {
+            samples: 200,
+            keep: 0.7,
+            locality: 0.2,
+            rounds: 3,
+            smoothness: 2.0,
+            smoothing_rounds: 10,
+            orientation: 0.01,
+            reorient: 1.0,
+        }
     }
 }
 
@@ -125,6 +148,11 @@ impl AnchorGrowthParams {
         }
         if !(self.smoothness >= 0.0 && self.smoothness.is_finite()) {
             return Err(format!("growth_smoothness = {}: must be finite and ≥ 0", self.smoothness));
+        }
+        for (name, v) in [("growth_orientation", self.orientation), ("growth_reorient", self.reorient)] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(format!("{name} = {v}: must be finite and ≥ 0"));
+            }
         }
         if self.rounds == 0 {
             return Err("growth_rounds = 0: at least 1 (turn growth off with growth_samples = 0)".into());
@@ -210,6 +238,11 @@ pub struct DenseMap {
     pub anchor_map: Vec<usize>,
     /// Anchors used in the last round of growth (0 when growth is off).
     pub grown_anchors: usize,
+    /// Mean orientation agreement (in [−1, 1]) of the grown map over all test vertices
+    /// (`None` when growth is off); negative for a mirror image.
+    pub dense_orientation: Option<f64>,
+    /// Whether growth found a mirror image and the strongly oriented second run replaced it.
+    pub reoriented: bool,
     /// Test vertex → reference vertex: among the forest's candidates, the one nearest to the
     /// regularised functional map's spectral embedding.
     pub spectral_map: Vec<usize>,
@@ -396,14 +429,7 @@ pub fn sparse_matches(
 
     // 4. Game.
     let t0 = Instant::now();
-    let energies = orientation_energies(&reference.spectrum);
-    let o_test =
-        orientation_descriptors(&test.mesh, orientation_functions(&test.spectrum, &energies).as_ref());
-    let o_ref = orientation_descriptors(
-        &reference.mesh,
-        orientation_functions(&reference.spectrum, &energies).as_ref(),
-    );
-    let n_pairs = o_test.len() / test.mesh.n_vertices().max(1);
+    let (o_test, o_ref, n_pairs) = orientation_pair(test, reference);
     let agreement = |m: usize, r: usize| {
         cosine(&o_test[m * n_pairs..(m + 1) * n_pairs], &o_ref[r * n_pairs..(r + 1) * n_pairs])
     };
@@ -512,14 +538,20 @@ pub fn dense_map(
         fmap::point_to_point_restricted(&test.spectrum, &reference.spectrum, c.as_ref(), &posterior)?;
     let anchor_map = anchor_consistent_map(a_fields, b_fields, &weights, &posterior, &fmap_map);
     timings.point_map_s = t0.elapsed().as_secs_f64();
-    let (map, grown_anchors) = match &params.growth {
+    let grown = match &params.growth {
         Some(g) if !weights.is_empty() => {
             let t0 = Instant::now();
             let grown = grow_anchors(test, reference, &posterior, anchor_map.clone(), g)?;
             timings.growth_s = t0.elapsed().as_secs_f64();
-            grown
+            Some(grown)
         }
-        _ => (anchor_map.clone(), 0),
+        _ => None,
+    };
+    let (dense_orientation, reoriented) =
+        grown.as_ref().map_or((None, false), |g| (Some(g.orientation), g.reoriented));
+    let (map, grown_anchors) = match grown {
+        Some(g) => (g.map, g.anchors),
+        None => (anchor_map.clone(), 0),
     };
     let refined_map = match params.zoomout {
         Some(z) if kt == kr => {
@@ -538,6 +570,8 @@ pub fn dense_map(
         map,
         anchor_map,
         grown_anchors,
+        dense_orientation,
+        reoriented,
         spectral_map,
         fmap_map,
         refined_map,
@@ -590,6 +624,54 @@ fn grow_anchors(
     posterior: &LabelledPosterior<'_>,
     start: Vec<usize>,
     p: &AnchorGrowthParams,
+) -> Result<Grown, Error> {
+    let orientation = orientation_pair(test, reference);
+    let (o_test, o_ref, np) = (&orientation.0, &orientation.1, orientation.2);
+    let agreement = |map: &[usize]| -> f64 {
+        map.iter()
+            .enumerate()
+            .map(|(m, &r)| cosine(&o_test[m * np..(m + 1) * np], &o_ref[r * np..(r + 1) * np]))
+            .sum::<f64>()
+            / map.len().max(1) as f64
+    };
+    let (map, anchors) =
+        grow_rounds(test, reference, posterior, start.clone(), p, &orientation, p.orientation)?;
+    let score = agreement(&map);
+    if p.reorient <= 0.0 {
+        return Ok(Grown { map, anchors, orientation: score, reoriented: false });
+    }
+    // The second hypothesis: a first round placed with a strong orientation term, which puts
+    // every vertex on the side its orientation descriptor says (undoing a mirror image of the
+    // game's anchors, whole or in part), then the ordinary rounds. The better oriented map wins.
+    let (second, second_anchors) =
+        grow_rounds(test, reference, posterior, start, p, &orientation, p.reorient)?;
+    let second_score = agreement(&second);
+    if second_score > score {
+        Ok(Grown { map: second, anchors: second_anchors, orientation: second_score, reoriented: true })
+    } else {
+        Ok(Grown { map, anchors, orientation: score, reoriented: false })
+    }
+}
+
+/// What anchor growth returns.
+struct Grown {
+    map: Vec<usize>,
+    anchors: usize,
+    /// Mean orientation agreement of the map over all test vertices.
+    orientation: f64,
+    /// Whether the map came from the second, strongly oriented run.
+    reoriented: bool,
+}
+
+/// The rounds of anchor growth from `start`.
+fn grow_rounds(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    posterior: &LabelledPosterior<'_>,
+    start: Vec<usize>,
+    p: &AnchorGrowthParams,
+    orientation: &(Vec<f64>, Vec<f64>, usize),
+    first_orientation: f64,
 ) -> Result<(Vec<usize>, usize), Error> {
     use rayon::prelude::*;
     let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
@@ -607,6 +689,8 @@ fn grow_anchors(
     let mut map = start;
     let n_keep = ((s as f64 * p.keep).ceil() as usize).clamp(3, s);
     let mut used = 0;
+    let o = orientation;
+    let (o_test, o_ref, np) = (&o.0, &o.1, o.2);
     for round in 0..p.rounds {
         let targets: Vec<usize> = samples.iter().map(|&v| map[v]).collect();
         let mut missing: Vec<usize> = targets.iter().copied().filter(|t| !ref_cols.contains_key(t)).collect();
@@ -655,6 +739,7 @@ fn grow_anchors(
             }
         }
         let last = round + 1 == p.rounds;
+        let gamma = if round == 0 { first_orientation } else { p.orientation } as f32;
         // Each vertex's candidates with their cost (mean locality-weighted disagreement, in
         // √area units); the cheapest is the new placement. The last round keeps the table for
         // the smoothing below.
@@ -667,8 +752,12 @@ fn grow_anchors(
                 let mut table = Vec::new();
                 posterior.for_each_entry(m, &mut |r, _| {
                     let br = &b[r * k..(r + 1) * k];
-                    let cost: f32 =
+                    let mut cost: f32 =
                         am.iter().zip(wm).zip(br).map(|((x, w), y)| w * (x - y).abs()).sum::<f32>() * norm;
+                    if gamma > 0.0 {
+                        let agree = cosine(&o_test[m * np..(m + 1) * np], &o_ref[r * np..(r + 1) * np]);
+                        cost += gamma * (0.5 * (1.0 - agree)) as f32;
+                    }
                     if cost < best.0 {
                         best = (cost, r);
                     }
@@ -760,6 +849,20 @@ fn smooth_placement(
         }
     }
     map
+}
+
+/// The orientation descriptors of both shapes, from the same band-pass energies (chosen on the
+/// reference spectrum), as row-major `n × n_pairs` tables.
+fn orientation_pair(test: &PreparedShape, reference: &PreparedShape) -> (Vec<f64>, Vec<f64>, usize) {
+    let energies = orientation_energies(&reference.spectrum);
+    let o_test =
+        orientation_descriptors(&test.mesh, orientation_functions(&test.spectrum, &energies).as_ref());
+    let o_ref = orientation_descriptors(
+        &reference.mesh,
+        orientation_functions(&reference.spectrum, &energies).as_ref(),
+    );
+    let n_pairs = o_test.len() / test.mesh.n_vertices().max(1);
+    (o_test, o_ref, n_pairs)
 }
 
 /// Log-energies of the band-pass functions behind the orientation descriptors: five, spread

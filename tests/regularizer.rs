@@ -7,7 +7,9 @@ use shapeforest::{
     eval::{geodesic_errors, ErrorSummary},
     forest::{RandomForest, TrainingSet},
     geodesic::HeatParams,
-    regularizer::{regularize, PreparedShape, RegularizerParams},
+    regularizer::{
+        dense_map, regularize, sparse_matches, AnchorGrowthParams, PreparedShape, RegularizerParams,
+    },
     spectral::{compute_spectrum, SpectrumParams},
     synth::{creature_family, CreatureParams},
 };
@@ -104,4 +106,54 @@ fn anchor_growth_places_vertices_at_least_as_well_as_the_games_few_anchors() {
         let (labels, _) = prediction.posterior(m);
         assert!(labels.is_empty() || labels.contains(&(r as u32)), "vertex {m} left its candidates");
     }
+}
+
+#[test]
+fn a_mirrored_set_of_game_anchors_is_undone_by_the_reoriented_growth_run() {
+    let fam = creature_family(&CreatureParams { target_vertices: 2000, seed: 11, ..Default::default() }, 6)
+        .unwrap();
+    let n = fam.template.n_vertices();
+    let spectra: Vec<_> =
+        fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &SpectrumParams::new(60)).unwrap())).collect();
+    let set = TrainingSet::same_indexing((1..6).map(|i| (format!("s{i}"), spectra[i].clone()))).unwrap();
+    let forest = RandomForest::params().n_trees(8).seed(5).check().unwrap().fit(&set).unwrap();
+    let prediction = forest.predict(&spectra[0]).unwrap();
+    let prepare = |i: usize| {
+        PreparedShape::new(Arc::new(fam.shapes[i].clone()), spectra[i].clone(), HeatParams::default())
+            .unwrap()
+    };
+    let (test, reference) = (prepare(0), prepare(1));
+    let params = RegularizerParams::default();
+    let mut sparse = sparse_matches(&test, &reference, &prediction, None, &params).unwrap();
+    // Replace every game anchor by its mirror image on the reference: a consistent, but
+    // mirrored, set of matches (what the game settles on when orientation cues fail).
+    let mirrored: Vec<usize> = sparse.matches.iter().map(|m| fam.symmetry[m.reference]).collect();
+    let fields = reference.heat.distances_from_many(&mirrored).unwrap();
+    let scale = 1.0 / reference.sqrt_area();
+    sparse.ref_fields = faer::Mat::from_fn(n, mirrored.len(), |v, j| fields[(v, j)] * scale);
+    for (m, &r) in sparse.matches.iter_mut().zip(&mirrored) {
+        m.reference = r;
+    }
+
+    let evaluated: Vec<usize> = (0..n).step_by(3).collect();
+    let eval_fields = reference.heat.distances_from_many(&evaluated).unwrap();
+    let area = reference.mesh.surface_area();
+    let strict = |map: &[usize]| {
+        ErrorSummary::of(&geodesic_errors(map, &evaluated, eval_fields.as_ref(), None, area).unwrap().0)
+    };
+    // Without the re-oriented run, growth follows the mirrored anchors…
+    let plain = RegularizerParams {
+        growth: Some(AnchorGrowthParams { reorient: 0.0, orientation: 0.0, ..Default::default() }),
+        ..Default::default()
+    };
+    let followed = dense_map(&test, &reference, &prediction, None, &sparse, &plain).unwrap();
+    let followed_summary = strict(&followed.map);
+    assert!(followed_summary.within_005 < 0.6, "mirrored anchors were not followed: {followed_summary:?}");
+    assert!(followed.dense_orientation.unwrap() < 0.0);
+    // …the default settings notice the mirror image and place the vertices the right way round.
+    let dense = dense_map(&test, &reference, &prediction, None, &sparse, &params).unwrap();
+    let summary = strict(&dense.map);
+    assert!(dense.reoriented, "the re-oriented run should win");
+    assert!(dense.dense_orientation.unwrap() > 0.0);
+    assert!(summary.within_005 > 0.85, "{summary:?}");
 }

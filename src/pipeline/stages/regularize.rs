@@ -81,6 +81,13 @@ pub struct FmapConfig {
     /// Default 2.
     #[serde(default = "default_growth_smoothness")]
     pub growth_smoothness: f64,
+    /// Anchor growth: weight of the orientation term of every placement. Default 0.01.
+    #[serde(default = "default_growth_orientation")]
+    pub growth_orientation: f64,
+    /// Anchor growth: orientation weight of the first round of the second, re-orienting run
+    /// (0: no second run). Default 1.
+    #[serde(default = "default_growth_reorient")]
+    pub growth_reorient: f64,
 }
 
 fn default_growth_samples() -> usize {
@@ -97,6 +104,12 @@ fn default_growth_rounds() -> usize {
 }
 fn default_growth_smoothness() -> f64 {
     AnchorGrowthParams::default().smoothness
+}
+fn default_growth_orientation() -> f64 {
+    AnchorGrowthParams::default().orientation
+}
+fn default_growth_reorient() -> f64 {
+    AnchorGrowthParams::default().reorient
 }
 
 fn default_basis() -> usize {
@@ -118,6 +131,8 @@ impl Default for FmapConfig {
             growth_locality: default_growth_locality(),
             growth_rounds: default_growth_rounds(),
             growth_smoothness: default_growth_smoothness(),
+            growth_orientation: default_growth_orientation(),
+            growth_reorient: default_growth_reorient(),
         }
     }
 }
@@ -137,6 +152,8 @@ pub fn regularizer_params(m: &MatcherConfig, f: &FmapConfig) -> RegularizerParam
         locality: f.growth_locality,
         rounds: f.growth_rounds,
         smoothness: f.growth_smoothness,
+        orientation: f.growth_orientation,
+        reorient: f.growth_reorient,
         ..Default::default()
     });
     p
