@@ -150,6 +150,9 @@ pub fn run(args: MatchArgs) -> Result<()> {
         "n_matches": dense.matches.len(),
         "orientation_score": dense.orientation_score,
         "mirror_rejected": dense.mirror_rejected,
+        "grown_anchors": dense.grown_anchors,
+        "dense_orientation_agreement": dense.dense_orientation,
+        "reoriented": dense.reoriented,
         "mean_forest_confidence": confidence,
         "mean_forest_support": prediction.mean_support(),
         "timings_s": {
@@ -164,6 +167,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
             "regularize_matching": tm.matching_s,
             "regularize_fmap": tm.fmap_s,
             "regularize_point_map": tm.point_map_s,
+            "regularize_growth": tm.growth_s,
             "write": write_s,
             "total": t_all.elapsed().as_secs_f64(),
         },
