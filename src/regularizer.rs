@@ -793,26 +793,7 @@ fn smooth_placement(
 ) -> Vec<usize> {
     use rayon::prelude::*;
     let n = test.n_vertices();
-    // Vertex neighbours (CSR) from the faces.
-    let mut degree = vec![0usize; n + 1];
-    for f in &test.faces {
-        for &v in f {
-            degree[v + 1] += 2;
-        }
-    }
-    for v in 0..n {
-        degree[v + 1] += degree[v];
-    }
-    let mut fill = degree.clone();
-    let mut nbrs = vec![0usize; degree[n]];
-    for f in &test.faces {
-        for (x, y) in [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])] {
-            nbrs[fill[x]] = y;
-            fill[x] += 1;
-            nbrs[fill[y]] = x;
-            fill[y] += 1;
-        }
-    }
+    let (degree, nbrs) = crate::mesh::face_neighbour_lists(&test.faces, n);
     let pos = &reference.vertices;
     let scale = p.smoothness / ref_sqrt_area.max(f64::MIN_POSITIVE);
     for _ in 0..p.smoothing_rounds {

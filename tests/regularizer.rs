@@ -61,21 +61,39 @@ fn regularised_map_is_accurate_and_consistently_oriented() {
     assert!(dense.matches.len() >= 8, "only {} matches", dense.matches.len());
 }
 
-#[test]
-fn anchor_growth_places_vertices_at_least_as_well_as_the_games_few_anchors() {
-    let fam =
-        creature_family(&CreatureParams { target_vertices: 2000, seed: 7, ..Default::default() }, 6).unwrap();
+/// A synthetic test pose (shape 0), its forest prediction from shapes 1–5, and shape 1 as the
+/// reference.
+struct Case {
+    fam: shapeforest::synth::ShapeFamily,
+    n: usize,
+    prediction: shapeforest::forest::Prediction,
+    test: PreparedShape,
+    reference: PreparedShape,
+}
+
+fn case(family_seed: u64, forest_seed: u64) -> Case {
+    let fam = creature_family(
+        &CreatureParams { target_vertices: 2000, seed: family_seed, ..Default::default() },
+        6,
+    )
+    .unwrap();
     let n = fam.template.n_vertices();
     let spectra: Vec<_> =
         fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &SpectrumParams::new(60)).unwrap())).collect();
     let set = TrainingSet::same_indexing((1..6).map(|i| (format!("s{i}"), spectra[i].clone()))).unwrap();
-    let forest = RandomForest::params().n_trees(8).seed(3).check().unwrap().fit(&set).unwrap();
+    let forest = RandomForest::params().n_trees(8).seed(forest_seed).check().unwrap().fit(&set).unwrap();
     let prediction = forest.predict(&spectra[0]).unwrap();
     let prepare = |i: usize| {
         PreparedShape::new(Arc::new(fam.shapes[i].clone()), spectra[i].clone(), HeatParams::default())
             .unwrap()
     };
     let (test, reference) = (prepare(0), prepare(1));
+    Case { fam, n, prediction, test, reference }
+}
+
+#[test]
+fn anchor_growth_places_vertices_at_least_as_well_as_the_games_few_anchors() {
+    let Case { n, prediction, test, reference, .. } = case(7, 3);
     let dense = regularize(&test, &reference, &prediction, None, &RegularizerParams::default()).unwrap();
     let off = RegularizerParams { growth: None, ..Default::default() };
     let plain = regularize(&test, &reference, &prediction, None, &off).unwrap();
@@ -110,19 +128,7 @@ fn anchor_growth_places_vertices_at_least_as_well_as_the_games_few_anchors() {
 
 #[test]
 fn a_mirrored_set_of_game_anchors_is_undone_by_the_reoriented_growth_run() {
-    let fam = creature_family(&CreatureParams { target_vertices: 2000, seed: 11, ..Default::default() }, 6)
-        .unwrap();
-    let n = fam.template.n_vertices();
-    let spectra: Vec<_> =
-        fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &SpectrumParams::new(60)).unwrap())).collect();
-    let set = TrainingSet::same_indexing((1..6).map(|i| (format!("s{i}"), spectra[i].clone()))).unwrap();
-    let forest = RandomForest::params().n_trees(8).seed(5).check().unwrap().fit(&set).unwrap();
-    let prediction = forest.predict(&spectra[0]).unwrap();
-    let prepare = |i: usize| {
-        PreparedShape::new(Arc::new(fam.shapes[i].clone()), spectra[i].clone(), HeatParams::default())
-            .unwrap()
-    };
-    let (test, reference) = (prepare(0), prepare(1));
+    let Case { fam, n, prediction, test, reference } = case(11, 5);
     let params = RegularizerParams::default();
     let mut sparse = sparse_matches(&test, &reference, &prediction, None, &params).unwrap();
     // Replace every game anchor by its mirror image on the reference: a consistent, but

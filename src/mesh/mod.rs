@@ -166,6 +166,39 @@ impl Mesh {
     }
 }
 
+/// The vertex neighbours of a triangle list over `n` vertices, as compressed rows: those of `v`
+/// are `neighbours[offsets[v]..offsets[v + 1]]`, the two other corners of each face at `v` in
+/// face order (an interior edge's far end appears twice, once per face).
+///
+/// ```
+/// use shapeforest::mesh::face_neighbour_lists;
+/// let (offsets, neighbours) = face_neighbour_lists(&[[0, 1, 2], [0, 2, 3]], 4);
+/// assert_eq!(&neighbours[offsets[0]..offsets[1]], &[1, 2, 2, 3]);
+/// assert_eq!(&neighbours[offsets[3]..offsets[4]], &[0, 2]);
+/// ```
+pub fn face_neighbour_lists(faces: &[[usize; 3]], n: usize) -> (Vec<usize>, Vec<usize>) {
+    let mut offsets = vec![0usize; n + 1];
+    for face in faces {
+        for &v in face {
+            offsets[v + 1] += 2;
+        }
+    }
+    for v in 0..n {
+        offsets[v + 1] += offsets[v];
+    }
+    let mut fill = offsets.clone();
+    let mut neighbours = vec![0usize; offsets[n]];
+    for face in faces {
+        for e in 0..3 {
+            let v = face[e];
+            neighbours[fill[v]] = face[(e + 1) % 3];
+            neighbours[fill[v] + 1] = face[(e + 2) % 3];
+            fill[v] += 2;
+        }
+    }
+    (offsets, neighbours)
+}
+
 /// Area of the triangle `(a, b, c)`.
 pub fn triangle_area(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> f64 {
     0.5 * norm(cross(sub(b, a), sub(c, a)))

@@ -16,7 +16,7 @@ use std::hash::{BuildHasherDefault, Hasher};
 use rayon::prelude::*;
 
 use super::SynthError;
-use crate::mesh::{cross, dot, norm, sub};
+use crate::mesh::{cross, dot, face_neighbour_lists, norm, sub};
 
 /// Evaluates `f` on the mirror-folded point `(|x|, y, z)`.
 #[inline]
@@ -357,25 +357,7 @@ fn relax<F: Fn([f64; 3]) -> f64 + Sync>(f: &F, s: &mut SymmetricSurface, h: f64,
 /// and exact re-symmetrisation.
 fn smooth_step<F: Fn([f64; 3]) -> f64 + Sync>(f: &F, s: &mut SymmetricSurface, eps: f64, step: f64) {
     let n = s.vertices.len();
-    let mut start = vec![0usize; n + 1];
-    for face in &s.faces {
-        for &v in face {
-            start[v + 1] += 2;
-        }
-    }
-    for v in 0..n {
-        start[v + 1] += start[v];
-    }
-    let mut fill = start.clone();
-    let mut nbr = vec![0usize; start[n]];
-    for face in &s.faces {
-        for e in 0..3 {
-            let v = face[e];
-            nbr[fill[v]] = face[(e + 1) % 3];
-            nbr[fill[v] + 1] = face[(e + 2) % 3];
-            fill[v] += 2;
-        }
-    }
+    let (start, nbr) = face_neighbour_lists(&s.faces, n);
     let old = &s.vertices;
     let moved: Vec<[f64; 3]> = (0..n)
         .into_par_iter()
