@@ -626,31 +626,70 @@ fn grow_anchors(
     p: &AnchorGrowthParams,
 ) -> Result<Grown, Error> {
     let orientation = orientation_pair(test, reference);
-    let (o_test, o_ref, np) = (&orientation.0, &orientation.1, orientation.2);
-    let agreement = |map: &[usize]| -> f64 {
-        map.iter()
-            .enumerate()
-            .map(|(m, &r)| cosine(&o_test[m * np..(m + 1) * np], &o_ref[r * np..(r + 1) * np]))
-            .sum::<f64>()
-            / map.len().max(1) as f64
-    };
-    let (map, anchors) =
-        grow_rounds(test, reference, posterior, start.clone(), p, &orientation, p.orientation)?;
-    let score = agreement(&map);
+    // Shared by both runs: the samples, their test-side fields, and the reference fields of
+    // the first round's targets (the same in both runs).
+    let samples = farthest_point_sampling_euclidean(&test.mesh, p.samples.min(test.mesh.n_vertices()), None)?;
+    if samples.len() < 3 {
+        let score = orientation_agreement(&orientation, &start);
+        return Ok(Grown { map: start, anchors: 0, orientation: score, reoriented: false });
+    }
+    let a_fields = test.heat.distances_from_many(&samples)?;
+    let mut first: Vec<usize> = samples.iter().map(|&v| start[v]).collect();
+    first.sort_unstable();
+    first.dedup();
+    let setup =
+        GrowthSetup { first_cols: reference_columns(reference, &first)?, samples, a_fields, orientation };
+    let (map, anchors) = grow_rounds(test, reference, posterior, start.clone(), p, p.orientation, &setup)?;
+    let score = orientation_agreement(&setup.orientation, &map);
     if p.reorient <= 0.0 {
         return Ok(Grown { map, anchors, orientation: score, reoriented: false });
     }
     // The second hypothesis: a first round placed with a strong orientation term, which puts
     // every vertex on the side its orientation descriptor says (undoing a mirror image of the
     // game's anchors, whole or in part), then the ordinary rounds. The better oriented map wins.
-    let (second, second_anchors) =
-        grow_rounds(test, reference, posterior, start, p, &orientation, p.reorient)?;
-    let second_score = agreement(&second);
+    let (second, second_anchors) = grow_rounds(test, reference, posterior, start, p, p.reorient, &setup)?;
+    let second_score = orientation_agreement(&setup.orientation, &second);
     if second_score > score {
         Ok(Grown { map: second, anchors: second_anchors, orientation: second_score, reoriented: true })
     } else {
         Ok(Grown { map, anchors, orientation: score, reoriented: false })
     }
+}
+
+/// Mean agreement of the orientation descriptors (`(test, reference, width)`) along `map`.
+fn orientation_agreement(o: &(Vec<f64>, Vec<f64>, usize), map: &[usize]) -> f64 {
+    let (o_test, o_ref, np) = (&o.0, &o.1, o.2);
+    map.iter()
+        .enumerate()
+        .map(|(m, &r)| cosine(&o_test[m * np..(m + 1) * np], &o_ref[r * np..(r + 1) * np]))
+        .sum::<f64>()
+        / map.len().max(1) as f64
+}
+
+/// What both growth runs share.
+struct GrowthSetup {
+    /// Farthest-point samples of the test shape.
+    samples: Vec<usize>,
+    /// Distances from the samples on the test shape (`n_test × samples`, not normalised).
+    a_fields: Mat<f64>,
+    /// Normalised reference distance columns of the first round's targets.
+    first_cols: std::collections::HashMap<usize, Vec<f32>>,
+    /// Orientation descriptors of the test and reference shapes (row-major) and their width.
+    orientation: (Vec<f64>, Vec<f64>, usize),
+}
+
+/// Normalised (÷ √area) reference distance columns from `targets`, as f32, one block solve.
+fn reference_columns(
+    reference: &PreparedShape,
+    targets: &[usize],
+) -> Result<std::collections::HashMap<usize, Vec<f32>>, Error> {
+    let rs = 1.0 / reference.sqrt_area();
+    let f = reference.heat.distances_from_many(targets)?;
+    Ok(targets
+        .iter()
+        .enumerate()
+        .map(|(j, &t)| (t, f.col(j).iter().map(|&d| (d * rs) as f32).collect()))
+        .collect())
 }
 
 /// What anchor growth returns.
@@ -670,22 +709,17 @@ fn grow_rounds(
     posterior: &LabelledPosterior<'_>,
     start: Vec<usize>,
     p: &AnchorGrowthParams,
-    orientation: &(Vec<f64>, Vec<f64>, usize),
     first_orientation: f64,
+    setup: &GrowthSetup,
 ) -> Result<(Vec<usize>, usize), Error> {
     use rayon::prelude::*;
     let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
-    let samples = farthest_point_sampling_euclidean(&test.mesh, p.samples.min(n_t), None)?;
+    let GrowthSetup { samples, a_fields, first_cols, orientation } = setup;
     let s = samples.len();
-    if s < 3 {
-        return Ok((start, 0));
-    }
-    let (ts, rs) = (1.0 / test.sqrt_area(), 1.0 / reference.sqrt_area());
-    // Test-side fields from the samples, normalised, as f32 columns.
-    let a_fields = test.heat.distances_from_many(&samples)?;
+    let ts = 1.0 / test.sqrt_area();
     let a_col = |j: usize| a_fields.col(j);
     // Reference-side fields, computed once per distinct target and dropped when unused.
-    let mut ref_cols: std::collections::HashMap<usize, Vec<f32>> = std::collections::HashMap::new();
+    let mut ref_cols = first_cols.clone();
     let mut map = start;
     let n_keep = ((s as f64 * p.keep).ceil() as usize).clamp(3, s);
     let mut used = 0;
@@ -697,10 +731,7 @@ fn grow_rounds(
         missing.sort_unstable();
         missing.dedup();
         if !missing.is_empty() {
-            let f = reference.heat.distances_from_many(&missing)?;
-            for (j, &t) in missing.iter().enumerate() {
-                ref_cols.insert(t, f.col(j).iter().map(|&d| (d * rs) as f32).collect());
-            }
+            ref_cols.extend(reference_columns(reference, &missing)?);
         }
         ref_cols.retain(|t, _| targets.contains(t));
         // Consistency of each pair with the others: median distance disagreement.
