@@ -429,10 +429,8 @@ pub fn sparse_matches(
 
     // 4. Game.
     let t0 = Instant::now();
-    let (o_test, o_ref, n_pairs) = orientation_pair(test, reference);
-    let agreement = |m: usize, r: usize| {
-        cosine(&o_test[m * n_pairs..(m + 1) * n_pairs], &o_ref[r * n_pairs..(r + 1) * n_pairs])
-    };
+    let orientation = Orientation::of(test, reference);
+    let agreement = |m: usize, r: usize| orientation.agreement(m, r);
     let group_score = |g: &crate::matching::GameMatching| {
         let (mut num, mut den) = (0.0, 0.0);
         for m in &g.matches {
@@ -547,11 +545,9 @@ pub fn dense_map(
         }
         _ => None,
     };
-    let (dense_orientation, reoriented) =
-        grown.as_ref().map_or((None, false), |g| (Some(g.orientation), g.reoriented));
-    let (map, grown_anchors) = match grown {
-        Some(g) => (g.map, g.anchors),
-        None => (anchor_map.clone(), 0),
+    let (map, grown_anchors, dense_orientation, reoriented) = match grown {
+        Some(g) => (g.map, g.anchors, Some(g.orientation), g.reoriented),
+        None => (anchor_map.clone(), 0, None, false),
     };
     let refined_map = match params.zoomout {
         Some(z) if kt == kr => {
@@ -625,12 +621,12 @@ fn grow_anchors(
     start: Vec<usize>,
     p: &AnchorGrowthParams,
 ) -> Result<Grown, Error> {
-    let orientation = orientation_pair(test, reference);
+    let orientation = Orientation::of(test, reference);
     // Shared by both runs: the samples, their test-side fields, and the reference fields of
     // the first round's targets (the same in both runs).
     let samples = farthest_point_sampling_euclidean(&test.mesh, p.samples.min(test.mesh.n_vertices()), None)?;
     if samples.len() < 3 {
-        let score = orientation_agreement(&orientation, &start);
+        let score = orientation.mean_agreement(&start);
         return Ok(Grown { map: start, anchors: 0, orientation: score, reoriented: false });
     }
     let a_fields = test.heat.distances_from_many(&samples)?;
@@ -640,7 +636,7 @@ fn grow_anchors(
     let setup =
         GrowthSetup { first_cols: reference_columns(reference, &first)?, samples, a_fields, orientation };
     let (map, anchors) = grow_rounds(test, reference, posterior, start.clone(), p, p.orientation, &setup)?;
-    let score = orientation_agreement(&setup.orientation, &map);
+    let score = setup.orientation.mean_agreement(&map);
     if p.reorient <= 0.0 {
         return Ok(Grown { map, anchors, orientation: score, reoriented: false });
     }
@@ -648,22 +644,12 @@ fn grow_anchors(
     // every vertex on the side its orientation descriptor says (undoing a mirror image of the
     // game's anchors, whole or in part), then the ordinary rounds. The better oriented map wins.
     let (second, second_anchors) = grow_rounds(test, reference, posterior, start, p, p.reorient, &setup)?;
-    let second_score = orientation_agreement(&setup.orientation, &second);
+    let second_score = setup.orientation.mean_agreement(&second);
     if second_score > score {
         Ok(Grown { map: second, anchors: second_anchors, orientation: second_score, reoriented: true })
     } else {
         Ok(Grown { map, anchors, orientation: score, reoriented: false })
     }
-}
-
-/// Mean agreement of the orientation descriptors (`(test, reference, width)`) along `map`.
-fn orientation_agreement(o: &(Vec<f64>, Vec<f64>, usize), map: &[usize]) -> f64 {
-    let (o_test, o_ref, np) = (&o.0, &o.1, o.2);
-    map.iter()
-        .enumerate()
-        .map(|(m, &r)| cosine(&o_test[m * np..(m + 1) * np], &o_ref[r * np..(r + 1) * np]))
-        .sum::<f64>()
-        / map.len().max(1) as f64
 }
 
 /// What both growth runs share.
@@ -674,8 +660,8 @@ struct GrowthSetup {
     a_fields: Mat<f64>,
     /// Normalised reference distance columns of the first round's targets.
     first_cols: std::collections::HashMap<usize, Vec<f32>>,
-    /// Orientation descriptors of the test and reference shapes (row-major) and their width.
-    orientation: (Vec<f64>, Vec<f64>, usize),
+    /// Orientation descriptors of the test and reference shapes.
+    orientation: Orientation,
 }
 
 /// Normalised (÷ √area) reference distance columns from `targets`, as f32, one block solve.
@@ -723,8 +709,6 @@ fn grow_rounds(
     let mut map = start;
     let n_keep = ((s as f64 * p.keep).ceil() as usize).clamp(3, s);
     let mut used = 0;
-    let o = orientation;
-    let (o_test, o_ref, np) = (&o.0, &o.1, o.2);
     for round in 0..p.rounds {
         let targets: Vec<usize> = samples.iter().map(|&v| map[v]).collect();
         let mut missing: Vec<usize> = targets.iter().copied().filter(|t| !ref_cols.contains_key(t)).collect();
@@ -786,8 +770,7 @@ fn grow_rounds(
                     let mut cost: f32 =
                         am.iter().zip(wm).zip(br).map(|((x, w), y)| w * (x - y).abs()).sum::<f32>() * norm;
                     if gamma > 0.0 {
-                        let agree = cosine(&o_test[m * np..(m + 1) * np], &o_ref[r * np..(r + 1) * np]);
-                        cost += gamma * (0.5 * (1.0 - agree)) as f32;
+                        cost += gamma * (0.5 * (1.0 - orientation.agreement(m, r))) as f32;
                     }
                     if cost < best.0 {
                         best = (cost, r);
@@ -863,18 +846,38 @@ fn smooth_placement(
     map
 }
 
-/// The orientation descriptors of both shapes, from the same band-pass energies (chosen on the
-/// reference spectrum), as row-major `n × n_pairs` tables.
-fn orientation_pair(test: &PreparedShape, reference: &PreparedShape) -> (Vec<f64>, Vec<f64>, usize) {
-    let energies = orientation_energies(&reference.spectrum);
-    let o_test =
-        orientation_descriptors(&test.mesh, orientation_functions(&test.spectrum, &energies).as_ref());
-    let o_ref = orientation_descriptors(
-        &reference.mesh,
-        orientation_functions(&reference.spectrum, &energies).as_ref(),
-    );
-    let n_pairs = o_test.len() / test.mesh.n_vertices().max(1);
-    (o_test, o_ref, n_pairs)
+/// The orientation descriptors of a test and a reference shape, from the same band-pass
+/// energies (chosen on the reference spectrum), as row-major `n × width` tables.
+struct Orientation {
+    test: Vec<f64>,
+    reference: Vec<f64>,
+    width: usize,
+}
+
+impl Orientation {
+    fn of(test: &PreparedShape, reference: &PreparedShape) -> Self {
+        let energies = orientation_energies(&reference.spectrum);
+        let o_test =
+            orientation_descriptors(&test.mesh, orientation_functions(&test.spectrum, &energies).as_ref());
+        let o_ref = orientation_descriptors(
+            &reference.mesh,
+            orientation_functions(&reference.spectrum, &energies).as_ref(),
+        );
+        let width = o_test.len() / test.mesh.n_vertices().max(1);
+        Self { test: o_test, reference: o_ref, width }
+    }
+
+    /// Agreement (cosine, in [−1, 1]) of test vertex `m`'s descriptor with reference vertex `r`'s:
+    /// positive where matching `m` to `r` preserves orientation.
+    fn agreement(&self, m: usize, r: usize) -> f64 {
+        let w = self.width;
+        cosine(&self.test[m * w..(m + 1) * w], &self.reference[r * w..(r + 1) * w])
+    }
+
+    /// Mean agreement along a map (test vertex → reference vertex).
+    fn mean_agreement(&self, map: &[usize]) -> f64 {
+        map.iter().enumerate().map(|(m, &r)| self.agreement(m, r)).sum::<f64>() / map.len().max(1) as f64
+    }
 }
 
 /// Log-energies of the band-pass functions behind the orientation descriptors: five, spread
