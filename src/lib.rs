@@ -18,6 +18,7 @@
 //! | [`fmap`] | functional maps: soft map in Laplace bases, regularised solve, point-to-point, ZoomOut |
 //! | [`eval`] | geodesic error of maps, cumulative curves, CSV and SVG reports |
 //! | [`regularizer`] | forest posterior → consistent matches → regularised functional map → dense map |
+//! | [`viz`] | PNG snapshots (a software rasteriser) and the interactive `view.html` (three.js) of a correspondence |
 //! | [`synth`] | deterministic synthetic shape families with known correspondence and test primitives |
 //!
 //! Conventions used throughout:
@@ -39,5 +40,6 @@ pub mod pipeline;
 pub mod regularizer;
 pub mod spectral;
 pub mod synth;
+pub mod viz;
 
 pub use error::{Error, Result};

@@ -221,7 +221,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         "scan", "≤ 0.05", "≤ 0.10", "mean", "sym. ≤ 0.05", "latency"
     );
     let mut pooled = (Vec::new(), Vec::new());
-    for name in &names {
+    for (i, name) in names.iter().enumerate() {
         let dir = data.matched().join(name);
         let text = std::fs::read_to_string(dir.join(format!("{name}.map.txt")))?;
         let map: Vec<usize> = text
@@ -234,6 +234,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
             serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{name}.report.json")))?)?;
         let (strict, sym) = geodesic_errors(&map, &evaluated, fields.as_ref(), Some(&fam.symmetry), area)?;
         let sym = sym.unwrap_or_default();
+        super::visual::write_scored_view(&dir, name, &fam.shapes[args.train + i], &reference, &manifest.reference, &map, &evaluated, &strict)?;
         let (s, y) = (ErrorSummary::of(&strict), ErrorSummary::of(&sym));
         println!(
             "  {:<18} {:>7.1}% {:>7.1}% {:>7.3} {:>13.1}% {:>8.1}s",
@@ -259,6 +260,10 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let _ = std::fs::remove_dir_all(&staging);
     println!("\n  outputs in {}:", args.out.display());
     println!("    matched/scan-creatureN/  map.txt (line i = reference vertex of scan vertex i), colored.ply, report.json, the scan");
+    println!("                             .png snapshot and view.html: open it in a browser to see the two coloured shapes");
+    if let Some(first) = names.first() {
+        println!("  look at a result: open {}", data.matched().join(first).join("view.html").display());
+    }
     println!(
         "    matched/reference-{}.colored.ply  the reference, coloured like the scans",
         manifest.reference

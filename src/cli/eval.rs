@@ -528,8 +528,9 @@ pub fn run(args: EvalArgs) -> Result<()> {
     print!("{}", format_table(&report));
     print!("{}", format_timings(&report));
     write_outputs(&args.out, &class, &report, params.curve_steps)?;
+    super::visual::write_eval_pages(&args.out, &class.shapes, &report, &format_table(&report))?;
     println!(
-        "wrote results.csv, timings.csv, curves.csv, curves.svg, peer/pairs.json to {}",
+        "wrote results.csv, timings.csv, curves.csv, curves.svg, peer/pairs.json, index.html, shapes/ to {}",
         args.out.display()
     );
     Ok(())

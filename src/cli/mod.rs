@@ -9,6 +9,8 @@ mod match_cmd;
 mod predict;
 mod run;
 mod train;
+mod view;
+mod visual;
 
 use clap::{Parser, Subcommand};
 
@@ -39,6 +41,8 @@ pub enum Command {
     Eval(eval::EvalArgs),
     /// Match a mesh to a reference with a trained model; write the map and coloured meshes.
     Match(match_cmd::MatchArgs),
+    /// Write the interactive view.html of a match result (a `match` output or a daemon's matched/NAME/).
+    View(view::ViewArgs),
     /// Run a pipeline file (pipelines/*.toml): batch training, matching, evaluation or a daemon.
     Run(run::RunArgs),
     /// The watch-folder daemon: match scans arriving in incoming/, learn from labeled/.
@@ -69,6 +73,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(args) => bench::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Match(args) => match_cmd::run(args),
+        Command::View(args) => view::run(args),
         Command::Run(args) => run::run(args),
         Command::Watch(args) => run::watch(args),
     }

@@ -163,6 +163,9 @@ pub struct MethodErrors {
     pub strict: Vec<f64>,
     /// Symmetric errors, when a symmetry map was given.
     pub symmetric: Option<Vec<f64>>,
+    /// The method's map: reference vertex of each test vertex (for pictures of the result).
+    #[serde(default)]
+    pub map: Vec<usize>,
 }
 
 /// Seconds spent per stage on one test shape (0 for a stage whose result was reused).
@@ -541,7 +544,7 @@ pub fn run_protocol(
                 }
                 None => None,
             };
-            Ok(MethodErrors { method, strict, symmetric })
+            Ok(MethodErrors { method, strict, symmetric, map: map.to_vec() })
         };
         let raw = |p: &Prediction| raw_map(p, table);
         let methods = vec![

@@ -131,6 +131,7 @@ impl MatchSink {
             let scan_colors: Vec<[u8; 3]> = dense.map.iter().map(|&r| ref_colors[r]).collect();
             write_colored_ply(partial.join(format!("{name}.colored.ply")), mesh, &scan_colors)
                 .map_err(|e| e.to_string())?;
+            crate::viz::write_snapshot(&partial.join(format!("{name}.png")), mesh, ref_mesh, &dense.map)?;
             let ref_path = root.join(format!("reference-{}.colored.ply", model.reference_name));
             if !ref_path.exists() {
                 write_colored_ply(&ref_path, ref_mesh, &ref_colors).map_err(|e| e.to_string())?;
