@@ -128,3 +128,19 @@ def synthetic_creatures(n_shapes: int = 8, vertices: int = 5000, seed: int = 0) 
 
 def icosphere(subdivisions: int = 3, radius: float = 1.0) -> Mesh:
     """A geodesic icosphere."""
+
+def snapshot(
+    scan: Mesh, reference: Mesh, map: ArrayLike, path: Union[str, PathLike[str]], width: int = 800, height: int = 400
+) -> None:
+    """PNG of the scan coloured through ``map`` (left) and the reference (right)."""
+
+def view(
+    scan: Mesh,
+    reference: Mesh,
+    map: ArrayLike,
+    path: Union[str, PathLike[str]],
+    points: Optional[ArrayLike] = None,
+    errors: Optional[ArrayLike] = None,
+    title: Optional[str] = None,
+) -> None:
+    """Self-contained interactive ``view.html`` of a map (three.js, offline)."""

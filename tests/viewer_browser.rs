@@ -11,7 +11,10 @@ use std::{
     time::{Duration, Instant},
 };
 
-use headless_chrome::{browser::tab::point::Point, protocol::cdp::Page::CaptureScreenshotFormatOption, Browser, LaunchOptions, Tab};
+use headless_chrome::{
+    browser::tab::point::Point, protocol::cdp::Page::CaptureScreenshotFormatOption, Browser, LaunchOptions,
+    Tab,
+};
 use shapeforest::{
     synth::{creature_family, CreatureParams},
     viz::{view_html, PointErrors, ViewPair},
@@ -37,8 +40,13 @@ struct Shot {
 }
 
 impl Shot {
-    fn take(tab: &Tab) -> Shot {
-        let bytes = tab.capture_screenshot(CaptureScreenshotFormatOption::Png, None, None, true).expect("screenshot");
+    /// Takes a screenshot; with `SHAPEFOREST_SCREENSHOTS=DIR` it is also saved as DIR/NAME.png.
+    fn take(tab: &Tab, name: &str) -> Shot {
+        let bytes =
+            tab.capture_screenshot(CaptureScreenshotFormatOption::Png, None, None, true).expect("screenshot");
+        if let Some(dir) = std::env::var_os("SHAPEFOREST_SCREENSHOTS") {
+            let _ = std::fs::write(PathBuf::from(dir).join(format!("{name}.png")), &bytes);
+        }
         let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
         let mut reader = decoder.read_info().expect("png header");
         let mut buf = vec![0; reader.output_buffer_size().expect("png size")];
@@ -80,7 +88,8 @@ fn view_html_draws_both_meshes_and_a_click_selects_a_vertex_and_its_match() {
         return;
     };
     // Two poses of the synthetic creature (shared indexing); the map is the ground truth.
-    let fam = creature_family(&CreatureParams { target_vertices: 2000, seed: 3, ..Default::default() }, 2).unwrap();
+    let fam =
+        creature_family(&CreatureParams { target_vertices: 2000, seed: 3, ..Default::default() }, 2).unwrap();
     let (scan, reference) = (&fam.shapes[1], &fam.shapes[0]);
     let map: Vec<usize> = (0..scan.n_vertices()).collect();
     let evaluated: Vec<usize> = (0..scan.n_vertices()).step_by(10).collect();
@@ -139,7 +148,7 @@ fn view_html_draws_both_meshes_and_a_click_selects_a_vertex_and_its_match() {
 
     // Both halves show a mesh: many pixels differ from the background below the title bar,
     // and they are coloured (not grey).
-    let shot = Shot::take(&tab);
+    let shot = Shot::take(&tab, "loaded");
     let half = shot.width / 2;
     let top = 90;
     let coloured = |p: [u8; 3]| {
@@ -148,7 +157,10 @@ fn view_html_draws_both_meshes_and_a_click_selects_a_vertex_and_its_match() {
     };
     let (left, right) = (shot.count(0, half, top, coloured), shot.count(half, shot.width, top, coloured));
     let area = half * (shot.height - top);
-    assert!(left * 50 > area && right * 50 > area, "coloured pixels: left {left}, right {right} of {area} each");
+    assert!(
+        left * 50 > area && right * 50 > area,
+        "coloured pixels: left {left}, right {right} of {area} each"
+    );
 
     // A real click (DevTools mouse events) on a visible scan vertex selects it and its match.
     let target = eval_json(
@@ -173,7 +185,7 @@ fn view_html_draws_both_meshes_and_a_click_selects_a_vertex_and_its_match() {
     assert!(text.as_str().unwrap_or_default().contains(&format!("vertex {scan_v}")), "{text}");
 
     // Both markers are drawn, one in each half.
-    let shot = Shot::take(&tab);
+    let shot = Shot::take(&tab, "selected");
     let is_marker = |p: [u8; 3]| p.iter().zip(MARKER).all(|(a, b)| a.abs_diff(b) < 40);
     let (ml, mr) = (shot.count(0, half, top, is_marker), shot.count(half, shot.width, top, is_marker));
     assert!(ml > 10 && mr > 10, "marker pixels: left {ml}, right {mr}");

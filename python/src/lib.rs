@@ -28,7 +28,7 @@ use shapeforest::{
     mesh::{self, Mesh as CoreMesh},
     regularizer::{regularize, PreparedShape, RegularizerParams},
     spectral::{compute_spectrum, Spectrum as CoreSpectrum, SpectrumParams},
-    synth,
+    synth, viz,
 };
 
 create_exception!(
@@ -67,9 +67,9 @@ fn rows3<'py>(obj: &Bound<'py, PyAny>, dtype: &str, what: &str) -> PyResult<Boun
 
 fn index_vector(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<i64>> {
     let arr = as_array(obj, "int64")?;
-    let arr: PyReadonlyArray1<'_, i64> = arr.extract().map_err(|_| {
-        PyValueError::new_err(format!("{what} must be a one-dimensional integer array"))
-    })?;
+    let arr: PyReadonlyArray1<'_, i64> = arr
+        .extract()
+        .map_err(|_| PyValueError::new_err(format!("{what} must be a one-dimensional integer array")))?;
     Ok(arr.as_slice()?.to_vec())
 }
 
@@ -122,7 +122,8 @@ impl Progress {
                 Some(f) => f.call1(py, (stage, done, total)).map(|_| ()),
                 None => py.import("sys").and_then(|sys| {
                     let end = if done >= total { "\n" } else { "" };
-                    sys.getattr("stderr")?.call_method1("write", (format!("\r{stage}: {done}/{total}{end}"),))?;
+                    sys.getattr("stderr")?
+                        .call_method1("write", (format!("\r{stage}: {done}/{total}{end}"),))?;
                     sys.getattr("stderr")?.call_method0("flush").map(|_| ())
                 }),
             };
@@ -320,7 +321,12 @@ fn spectrum_of(py: Python<'_>, shape: &Bound<'_, PyAny>, k: usize) -> PyResult<A
 /// `Spectrum`; times log-spaced over `[4 ln 10 / λ_max, 4 ln 10 / λ_1]` (Sun et al. 2009).
 #[pyfunction]
 #[pyo3(signature = (shape, n_times = 100, k = 100))]
-fn hks<'py>(py: Python<'py>, shape: &Bound<'py, PyAny>, n_times: usize, k: usize) -> PyResult<Bound<'py, PyArray2<f64>>> {
+fn hks<'py>(
+    py: Python<'py>,
+    shape: &Bound<'py, PyAny>,
+    n_times: usize,
+    k: usize,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let s = spectrum_of(py, shape, k)?;
     let m = py.detach(|| heat_kernel_signature(&s, &HksParams { n_times })).map_err(sf_err)?;
     Ok(mat_to_py(py, m))
@@ -425,6 +431,9 @@ fn geodesic_errors<'py>(
     Ok(errors.into_pyarray(py))
 }
 
+/// `(labels, probabilities)` of `Forest.predict`.
+type Predicted<'py> = (Bound<'py, PyArray2<i64>>, Bound<'py, PyArray2<f64>>);
+
 /// A random forest over parametric wave kernel signatures (Rodolà et al. 2014): it labels each
 /// vertex of a new shape with a posterior over the training class's labels.
 ///
@@ -478,7 +487,9 @@ impl PyForest {
                             .map(|x| match x {
                                 -1 => Ok(None),
                                 x => u32::try_from(x).map(Some).map_err(|_| {
-                                    PyValueError::new_err(format!("label {x} is neither -1 nor a label index"))
+                                    PyValueError::new_err(format!(
+                                        "label {x} is neither -1 nor a label index"
+                                    ))
                                 }),
                             })
                             .collect::<PyResult<Vec<_>>>()
@@ -521,7 +532,8 @@ impl PyForest {
             .map_err(|e| e.to_string())?;
             let trees = AtomicUsize::new(0);
             progress.report("trees", 0, n_trees);
-            let on_tree = |_: usize| progress.report("trees", trees.fetch_add(1, Ordering::Relaxed) + 1, n_trees);
+            let on_tree =
+                |_: usize| progress.report("trees", trees.fetch_add(1, Ordering::Relaxed) + 1, n_trees);
             valid.fit_with_progress(None, &set, &on_tree).map_err(|e| e.to_string())
         });
         Ok(Self { inner: Arc::new(inner.map_err(sf_err)?) })
@@ -542,7 +554,8 @@ impl PyForest {
     /// Writes the model file atomically (format version, parameters, checksum).
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
         let f = self.inner.clone();
-        py.detach(|| f.save(&path)).map_err(|e| sf_err(format!("cannot write the model {}: {e}", path.display())))
+        py.detach(|| f.save(&path))
+            .map_err(|e| sf_err(format!("cannot write the model {}: {e}", path.display())))
     }
 
     /// Number of labels (for a same-indexing class: the reference's vertex count).
@@ -567,12 +580,7 @@ impl PyForest {
     /// probable first; where a vertex has fewer than `top_k` labels in its posterior the rest
     /// are `-1` with probability 0.
     #[pyo3(signature = (mesh, top_k = 1))]
-    fn predict<'py>(
-        &self,
-        py: Python<'py>,
-        mesh: &PyMesh,
-        top_k: usize,
-    ) -> PyResult<(Bound<'py, PyArray2<i64>>, Bound<'py, PyArray2<f64>>)> {
+    fn predict<'py>(&self, py: Python<'py>, mesh: &PyMesh, top_k: usize) -> PyResult<Predicted<'py>> {
         if top_k == 0 {
             return Err(PyValueError::new_err("top_k must be at least 1"));
         }
@@ -648,7 +656,12 @@ impl PyForest {
     }
 
     fn __repr__(&self) -> String {
-        format!("Forest({} trees, {} labels, k={})", self.inner.n_trees(), self.inner.n_labels(), self.inner.k())
+        format!(
+            "Forest({} trees, {} labels, k={})",
+            self.inner.n_trees(),
+            self.inner.n_labels(),
+            self.inner.k()
+        )
     }
 }
 
@@ -680,6 +693,95 @@ fn icosphere(subdivisions: u32, radius: f64) -> PyResult<PyMesh> {
     Ok(PyMesh { inner: Arc::new(synth::icosphere(subdivisions, radius)), name: "icosphere".into() })
 }
 
+fn view_pair_parts(scan: &PyMesh, reference: &PyMesh, map: &Bound<'_, PyAny>) -> PyResult<Vec<usize>> {
+    let map = vertex_indices(map, reference.inner.n_vertices(), "map")?;
+    if map.len() != scan.inner.n_vertices() {
+        return Err(PyValueError::new_err(format!(
+            "map has {} entries but the scan {} has {} vertices",
+            map.len(),
+            scan.name,
+            scan.inner.n_vertices()
+        )));
+    }
+    Ok(map)
+}
+
+/// Renders a PNG snapshot of a map (the picture `shapeforest match` writes beside its
+/// results): the scan coloured through `map` (left) and the reference coloured by its
+/// coordinates (right), fixed camera, shaded; matching parts share colours. Writes `path`.
+#[pyfunction]
+#[pyo3(signature = (scan, reference, map, path, width = 800, height = 400))]
+fn snapshot(
+    py: Python<'_>,
+    scan: &PyMesh,
+    reference: &PyMesh,
+    map: &Bound<'_, PyAny>,
+    path: PathBuf,
+    width: usize,
+    height: usize,
+) -> PyResult<()> {
+    let map = view_pair_parts(scan, reference, map)?;
+    let (s, r) = (scan.clone(), reference.clone());
+    py.detach(|| -> Result<(), String> {
+        let pair = viz::ViewPair {
+            scan: &s.inner,
+            scan_name: &s.name,
+            reference: &r.inner,
+            reference_name: &r.name,
+            map: &map,
+            errors: None,
+        };
+        let params = viz::SnapshotParams { width, height, ..Default::default() };
+        let png = viz::snapshot_png(&pair, None, &params).map_err(|e| e.to_string())?;
+        std::fs::write(&path, png).map_err(|e| format!("cannot write {}: {e}", path.display()))
+    })
+    .map_err(sf_err)
+}
+
+/// Writes the interactive `view.html` of a map (the page of `shapeforest view`): both meshes
+/// in WebGL, orbit/zoom, click a point to see its match; with `points` and `errors` (geodesic
+/// errors at those scan vertices, e.g. from `geodesic_errors`) an error heat map and the
+/// cumulative curve. The page is self-contained and works offline.
+#[pyfunction]
+#[pyo3(signature = (scan, reference, map, path, points = None, errors = None, title = None))]
+#[allow(clippy::too_many_arguments)]
+fn view(
+    py: Python<'_>,
+    scan: &PyMesh,
+    reference: &PyMesh,
+    map: &Bound<'_, PyAny>,
+    path: PathBuf,
+    points: Option<&Bound<'_, PyAny>>,
+    errors: Option<&Bound<'_, PyAny>>,
+    title: Option<String>,
+) -> PyResult<()> {
+    let map = view_pair_parts(scan, reference, map)?;
+    let measured = match (points, errors) {
+        (Some(p), Some(e)) => {
+            let p = vertex_indices(p, scan.inner.n_vertices(), "points")?;
+            let e: PyReadonlyArray1<'_, f64> = as_array(e, "float64")?.extract()?;
+            Some((p, e.as_slice()?.to_vec()))
+        }
+        (None, None) => None,
+        _ => return Err(PyValueError::new_err("give both points and errors, or neither")),
+    };
+    let (s, r) = (scan.clone(), reference.clone());
+    let title = title.unwrap_or_else(|| format!("{} → {}", s.name, r.name));
+    py.detach(|| -> Result<(), String> {
+        let pair = viz::ViewPair {
+            scan: &s.inner,
+            scan_name: &s.name,
+            reference: &r.inner,
+            reference_name: &r.name,
+            map: &map,
+            errors: measured.as_ref().map(|(p, e)| viz::PointErrors { vertices: p, errors: e }),
+        };
+        let html = viz::view_html(&pair, &title).map_err(|e| e.to_string())?;
+        std::fs::write(&path, html).map_err(|e| format!("cannot write {}: {e}", path.display()))
+    })
+    .map_err(sf_err)
+}
+
 /// Dense non-rigid 3D shape correspondence with random forests over wave kernel signatures.
 #[pymodule(name = "shapeforest")]
 fn shapeforest_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -696,5 +798,7 @@ fn shapeforest_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(geodesic_errors, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic_creatures, m)?)?;
     m.add_function(wrap_pyfunction!(icosphere, m)?)?;
+    m.add_function(wrap_pyfunction!(snapshot, m)?)?;
+    m.add_function(wrap_pyfunction!(view, m)?)?;
     Ok(())
 }

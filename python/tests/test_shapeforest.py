@@ -162,3 +162,37 @@ def test_long_calls_release_the_gil():
     elapsed = time.perf_counter() - start
     # With the GIL held for the whole solve, this loop could not run meanwhile.
     assert elapsed > 0.05 and ticks > 10_000, (elapsed, ticks)
+
+
+def test_snapshot_and_view_pages(tmp_path, creatures):
+    scan, reference = creatures[1], creatures[0]
+    identity = np.arange(scan.n_vertices)
+    png = tmp_path / "pair.png"
+    sf.snapshot(scan, reference, identity, png, width=400, height=200)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    page = tmp_path / "view.html"
+    sf.view(scan, reference, identity, page, points=identity[::10], errors=np.full(len(identity[::10]), 0.01))
+    html = page.read_text()
+    assert "creature1" in html and "error heat map" in html and "100.0 % within 0.05" in html
+    with pytest.raises(ValueError, match="map has 3 entries"):
+        sf.snapshot(scan, reference, [0, 1, 2], png)
+    with pytest.raises(ValueError, match="both points and errors"):
+        sf.view(scan, reference, identity, page, points=identity)
+
+
+def test_the_readme_example_runs_as_written(tmp_path, monkeypatch, capsys):
+    import pathlib
+    import re
+
+    readme = pathlib.Path(__file__).resolve().parents[2] / "README.md"
+    text = readme.read_text()
+    block = re.search(r"<!-- python-example:start -->\s*```python\n(.*?)```", text, re.S)
+    assert block, "README.md has no python example block"
+    code = block.group(1)
+    assert len(code.strip().splitlines()) <= 10
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code, str(readme), "exec"), {})
+    out = capsys.readouterr().out
+    share = float(re.search(r"([\d.]+)% of the vertices within 0.05", out).group(1))
+    assert share >= 85.0, out
+    assert (tmp_path / "view.html").stat().st_size > 500_000

@@ -234,7 +234,16 @@ pub fn run(args: DemoArgs) -> Result<()> {
             serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{name}.report.json")))?)?;
         let (strict, sym) = geodesic_errors(&map, &evaluated, fields.as_ref(), Some(&fam.symmetry), area)?;
         let sym = sym.unwrap_or_default();
-        super::visual::write_scored_view(&dir, name, &fam.shapes[args.train + i], &reference, &manifest.reference, &map, &evaluated, &strict)?;
+        super::visual::write_scored_view(
+            &dir,
+            name,
+            &fam.shapes[args.train + i],
+            &reference,
+            &manifest.reference,
+            &map,
+            &evaluated,
+            &strict,
+        )?;
         let (s, y) = (ErrorSummary::of(&strict), ErrorSummary::of(&sym));
         println!(
             "  {:<18} {:>7.1}% {:>7.1}% {:>7.3} {:>13.1}% {:>8.1}s",

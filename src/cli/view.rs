@@ -114,12 +114,15 @@ pub fn run(args: ViewArgs) -> Result<()> {
         let file = map_path.file_name().and_then(|n| n.to_str()).unwrap_or_default();
         let name = file.trim_end_matches(".map.txt");
         let scan_path = dir.join(format!("{name}.colored.ply"));
-        let scan = read_mesh(&scan_path).with_context(|| format!("cannot read mesh {}", scan_path.display()))?;
+        let scan =
+            read_mesh(&scan_path).with_context(|| format!("cannot read mesh {}", scan_path.display()))?;
         let ref_path = find_reference(dir, name)?;
-        let reference = read_mesh(&ref_path).with_context(|| format!("cannot read mesh {}", ref_path.display()))?;
+        let reference =
+            read_mesh(&ref_path).with_context(|| format!("cannot read mesh {}", ref_path.display()))?;
         let map = read_map(map_path, scan.n_vertices(), reference.n_vertices())?;
         let errors_path = dir.join(format!("{name}.errors.csv"));
-        let errors = errors_path.is_file().then(|| read_errors(&errors_path, scan.n_vertices())).transpose()?;
+        let errors =
+            errors_path.is_file().then(|| read_errors(&errors_path, scan.n_vertices())).transpose()?;
         let ref_name = super::common::shape_name(&ref_path);
         let ref_name = ref_name.trim_start_matches("reference-").trim_end_matches(".colored");
         let pair = ViewPair {

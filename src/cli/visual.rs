@@ -13,7 +13,10 @@ use shapeforest::{
         ErrorSummary,
     },
     mesh::Mesh,
-    viz::{error_color, index_html, snapshot_png, view_html, IndexPage, IndexShape, PointErrors, SnapshotParams, ViewPair},
+    viz::{
+        error_color, index_html, snapshot_png, view_html, IndexPage, IndexShape, PointErrors, SnapshotParams,
+        ViewPair,
+    },
 };
 
 fn write(path: &Path, bytes: &[u8]) -> Result<()> {
@@ -21,7 +24,13 @@ fn write(path: &Path, bytes: &[u8]) -> Result<()> {
 }
 
 /// Writes `NAME.png` (scan through the map | reference) into `dir`.
-pub fn write_snapshot(dir: &Path, scan_name: &str, scan: &Mesh, reference: &Mesh, map: &[usize]) -> Result<PathBuf> {
+pub fn write_snapshot(
+    dir: &Path,
+    scan_name: &str,
+    scan: &Mesh,
+    reference: &Mesh,
+    map: &[usize],
+) -> Result<PathBuf> {
     let pair = ViewPair { scan, scan_name, reference, reference_name: "reference", map, errors: None };
     let png = snapshot_png(&pair, None, &SnapshotParams::default())
         .with_context(|| format!("cannot draw the snapshot of {scan_name}"))?;
@@ -33,14 +42,20 @@ pub fn write_snapshot(dir: &Path, scan_name: &str, scan: &Mesh, reference: &Mesh
 /// Writes `path` = the interactive view of a pair.
 pub fn write_view(path: &Path, pair: &ViewPair<'_>) -> Result<()> {
     let title = format!("{} → {}", pair.scan_name, pair.reference_name);
-    let html = view_html(pair, &title).with_context(|| format!("cannot build the view of {}", pair.scan_name))?;
+    let html =
+        view_html(pair, &title).with_context(|| format!("cannot build the view of {}", pair.scan_name))?;
     write(path, html.as_bytes())
 }
 
 /// The evaluation's pictures: per test shape `shapes/NAME.png` (regularised forest map),
 /// `shapes/NAME.errors.png` (its error heat map) and `shapes/NAME.view.html` (with ground
 /// truth), then `index.html` with the table, the curves and the snapshots.
-pub fn write_eval_pages(out: &Path, shapes: &[ProtocolShape], report: &ProtocolReport, table: &str) -> Result<()> {
+pub fn write_eval_pages(
+    out: &Path,
+    shapes: &[ProtocolShape],
+    report: &ProtocolReport,
+    table: &str,
+) -> Result<()> {
     let dir = out.join("shapes");
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut entries = Vec::new();
@@ -66,7 +81,10 @@ pub fn write_eval_pages(out: &Path, shapes: &[ProtocolShape], report: &ProtocolR
         write(&dir.join(format!("{}.png", test.name)), &png)?;
         if let Some(per_vertex) = pair.vertex_errors() {
             let colors: Vec<[u8; 3]> = per_vertex.iter().map(|&e| error_color(e, 0.1)).collect();
-            write(&dir.join(format!("{}.errors.png", test.name)), &snapshot_png(&pair, Some(&colors), &params)?)?;
+            write(
+                &dir.join(format!("{}.errors.png", test.name)),
+                &snapshot_png(&pair, Some(&colors), &params)?,
+            )?;
         }
         write_view(&dir.join(format!("{}.view.html", test.name)), &pair)?;
         let s = ErrorSummary::of(errors);
@@ -92,7 +110,10 @@ pub fn write_eval_pages(out: &Path, shapes: &[ProtocolShape], report: &ProtocolR
         title,
         table: table.to_string(),
         curves_svg,
-        files: ["results.csv", "timings.csv", "curves.csv", "curves.svg"].iter().map(|s| s.to_string()).collect(),
+        files: ["results.csv", "timings.csv", "curves.csv", "curves.svg"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect(),
         shapes: entries,
     };
     write(&out.join("index.html"), index_html(&page).as_bytes())

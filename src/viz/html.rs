@@ -58,14 +58,16 @@ fn shape_json(name: &str, mesh: &Mesh, colors: &[[u8; 3]]) -> serde_json::Value 
 /// A cumulative error curve as an inline SVG (fraction of points within each error threshold,
 /// thresholds 0 to 0.25).
 fn curve_svg(errors: &[f64]) -> String {
-    let (w, h, pad) = (300.0, 180.0, 30.0);
+    let (w, h, pad) = (280.0, 130.0, 34.0);
     let curve = cumulative_curve(errors, 50);
     let max_t = curve.thresholds.last().copied().unwrap_or(0.25).max(1e-9);
     let pts: Vec<String> = curve
         .thresholds
         .iter()
         .zip(&curve.fractions)
-        .map(|(t, f)| format!("{:.1},{:.1}", pad + t / max_t * (w - 2.0 * pad), h - pad - f * (h - 2.0 * pad)))
+        .map(|(t, f)| {
+            format!("{:.1},{:.1}", pad + t / max_t * (w - 2.0 * pad), h - pad - f * (h - 2.0 * pad))
+        })
         .collect();
     let mut s = format!(
         "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" viewBox=\"0 0 {w} {h}\" class=\"curve\">\
@@ -124,8 +126,9 @@ pub fn view_html(pair: &ViewPair<'_>, title: &str) -> Result<String, VizError> {
             let s = ErrorSummary::of(e.errors);
             let _ = write!(
                 panel,
-                "<div id=\"errors\"><b>{} evaluated points</b>: {:.1} % within 0.05, {:.1} % within 0.10, \
-                 mean {:.4}<br>{}<div class=\"legend\"><span>0</span><span class=\"bar\"></span><span>≥ {ERROR_COLOR_MAX}</span></div></div>",
+                "<div id=\"errors\"><div><b>{} evaluated points</b><br>{:.1} % within 0.05<br>{:.1} % within 0.10<br>\
+                 mean {:.4}</div>{}<div><div>heat map: error of the nearest evaluated point</div><div class=\"legend\">\
+                 <span>0</span><span class=\"bar\"></span><span>≥ {ERROR_COLOR_MAX}</span></div></div></div>",
                 e.errors.len(),
                 100.0 * s.within_005,
                 100.0 * s.within_010,
@@ -154,11 +157,8 @@ pub fn view_html(pair: &ViewPair<'_>, title: &str) -> Result<String, VizError> {
                 format!("data:text/javascript;base64,{}", B64.encode(ORBIT_CONTROLS_JS)),
         }
     });
-    let error_button = if pair.errors.is_some() {
-        "<button data-mode=\"error\">error heat map</button>"
-    } else {
-        ""
-    };
+    let error_button =
+        if pair.errors.is_some() { "<button data-mode=\"error\">error heat map</button>" } else { "" };
     let mut page = String::with_capacity(data.len() + 1_100_000);
     let _ = write!(
         page,
@@ -171,12 +171,14 @@ pub fn view_html(pair: &ViewPair<'_>, title: &str) -> Result<String, VizError> {
 {license}-->
 <style>
 html, body {{ margin: 0; height: 100%; font: 14px system-ui, sans-serif; background: #f6f6f6; color: #222; }}
-#bar {{ position: absolute; top: 0; left: 0; right: 0; padding: 6px 10px; background: rgba(255,255,255,0.85); z-index: 1; }}
+body {{ display: flex; flex-direction: column; }}
+#bar {{ padding: 6px 10px; background: #fff; border-bottom: 1px solid #ddd; }}
 #bar button {{ margin-left: 6px; }} #bar button.on {{ font-weight: bold; }}
-#names {{ position: absolute; top: 40px; left: 0; right: 0; display: flex; pointer-events: none; z-index: 1; }}
+#stage {{ position: relative; flex: 1; min-height: 0; }}
+#names {{ position: absolute; top: 6px; left: 0; right: 0; display: flex; pointer-events: none; }}
 #names div {{ flex: 1; text-align: center; color: #555; }}
-#view {{ display: block; width: 100vw; height: 100vh; }}
-#errors {{ position: absolute; right: 8px; bottom: 8px; background: rgba(255,255,255,0.9); padding: 6px; z-index: 1; }}
+#view {{ display: block; width: 100%; height: 100%; }}
+#errors {{ display: flex; align-items: center; gap: 16px; padding: 4px 10px; background: #fff; border-top: 1px solid #ddd; }}
 .legend {{ display: flex; align-items: center; gap: 4px; }}
 .legend .bar {{ width: 160px; height: 10px; background: linear-gradient(90deg, rgb(40,60,160), rgb(60,190,210), rgb(240,220,60), rgb(200,30,30)); }}
 #status {{ position: absolute; top: 50%; width: 100%; text-align: center; }}
@@ -187,9 +189,9 @@ html, body {{ margin: 0; height: 100%; font: 14px system-ui, sans-serif; backgro
 <div id="bar"><b>{title}</b> · drag to orbit, wheel to zoom, click a point to see its match ·
 colours: <button data-mode="map" class="on">through the map</button>{error_button}
 <div id="selection">no point selected</div></div>
+<div id="stage"><canvas id="view"></canvas>
 <div id="names"><div>scan: {scan}</div><div>reference: {reference}</div></div>
-<canvas id="view"></canvas>
-<div id="status">loading…</div>
+<div id="status">loading…</div></div>
 {panel}
 <script id="sf-data" type="application/json">{data}</script>
 <script type="module">
@@ -260,7 +262,8 @@ pub fn index_html(page: &IndexPage) -> String {
         let _ = write!(s, "<h2>Cumulative error curves</h2>\n<div class=\"curves\">{svg}</div>\n");
     }
     if !page.files.is_empty() {
-        let links: Vec<String> = page.files.iter().map(|f| format!("<a href=\"{0}\">{0}</a>", esc(f))).collect();
+        let links: Vec<String> =
+            page.files.iter().map(|f| format!("<a href=\"{0}\">{0}</a>", esc(f))).collect();
         let _ = writeln!(s, "<p>Files: {}</p>", links.join(" · "));
     }
     if !page.shapes.is_empty() {

@@ -163,7 +163,8 @@ impl ViewPair<'_> {
 /// assert_eq!(error_color(1.0, 0.1), [200, 30, 30]);
 /// ```
 pub fn error_color(error: f64, max: f64) -> [u8; 3] {
-    const STOPS: [[f64; 3]; 4] = [[40.0, 60.0, 160.0], [60.0, 190.0, 210.0], [240.0, 220.0, 60.0], [200.0, 30.0, 30.0]];
+    const STOPS: [[f64; 3]; 4] =
+        [[40.0, 60.0, 160.0], [60.0, 190.0, 210.0], [240.0, 220.0, 60.0], [200.0, 30.0, 30.0]];
     let t = if max > 0.0 { (error / max).clamp(0.0, 1.0) } else { 1.0 } * 3.0;
     let i = (t.floor() as usize).min(2);
     let f = t - i as f64;
@@ -177,8 +178,15 @@ pub fn error_color(error: f64, max: f64) -> [u8; 3] {
 /// Writes the PNG snapshot of `scan` mapped to `reference` to `path` (default
 /// [`SnapshotParams`]); the one file-writing helper here, for the daemon's sink. Errors are
 /// messages naming the file.
-pub fn write_snapshot(path: &std::path::Path, scan: &Mesh, reference: &Mesh, map: &[usize]) -> Result<(), String> {
-    let pair = ViewPair { scan, scan_name: "scan", reference, reference_name: "reference", map, errors: None };
-    let png = snapshot_png(&pair, None, &SnapshotParams::default()).map_err(|e| format!("{}: {e}", path.display()))?;
+pub fn write_snapshot(
+    path: &std::path::Path,
+    scan: &Mesh,
+    reference: &Mesh,
+    map: &[usize],
+) -> Result<(), String> {
+    let pair =
+        ViewPair { scan, scan_name: "scan", reference, reference_name: "reference", map, errors: None };
+    let png = snapshot_png(&pair, None, &SnapshotParams::default())
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     std::fs::write(path, png).map_err(|e| format!("{}: {e}", path.display()))
 }

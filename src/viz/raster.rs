@@ -104,7 +104,9 @@ fn draw_mesh(
     let (mx, my) = ((lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0);
     let screen: Vec<[f64; 3]> = cam
         .iter()
-        .map(|q| [x0 as f64 + w as f64 / 2.0 + scale * (q[0] - mx), h as f64 / 2.0 - scale * (q[1] - my), q[2]])
+        .map(|q| {
+            [x0 as f64 + w as f64 / 2.0 + scale * (q[0] - mx), h as f64 / 2.0 - scale * (q[1] - my), q[2]]
+        })
         .collect();
     let light = {
         let l: [f64; 3] = [0.35, 0.55, 1.0];
@@ -245,11 +247,21 @@ mod tests {
         // Every torus vertex mapped to the sphere's north-most vertex: the scan is one colour.
         let top = (0..s.n_vertices()).max_by(|&a, &b| s.vertices[a][1].total_cmp(&s.vertices[b][1])).unwrap();
         let map = vec![top; t.n_vertices()];
-        let pair = ViewPair { scan: &t, scan_name: "t", reference: &s, reference_name: "s", map: &map, errors: None };
+        let pair = ViewPair {
+            scan: &t,
+            scan_name: "t",
+            reference: &s,
+            reference_name: "s",
+            map: &map,
+            errors: None,
+        };
         let p = SnapshotParams::default();
         let img = render_snapshot(&pair, None, &p).unwrap();
         let drawn = |x0: usize, x1: usize| {
-            (0..img.height).flat_map(|y| (x0..x1).map(move |x| (x, y))).filter(|&(x, y)| img.pixel(x, y) != p.background).count()
+            (0..img.height)
+                .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+                .filter(|&(x, y)| img.pixel(x, y) != p.background)
+                .count()
         };
         let (left, right) = (drawn(0, 400), drawn(400, 800));
         assert!(left > 20_000 && right > 40_000, "drawn pixels: {left} left, {right} right");
@@ -277,7 +289,14 @@ mod tests {
     fn bad_sizes_are_errors() {
         let s = icosphere(1, 1.0);
         let map = vec![0; 3];
-        let pair = ViewPair { scan: &s, scan_name: "a", reference: &s, reference_name: "b", map: &map, errors: None };
+        let pair = ViewPair {
+            scan: &s,
+            scan_name: "a",
+            reference: &s,
+            reference_name: "b",
+            map: &map,
+            errors: None,
+        };
         let e = render_snapshot(&pair, None, &SnapshotParams::default()).unwrap_err().to_string();
         assert!(e.contains("the map has 3 entries but the scan `a` has 42 vertices"), "{e}");
         let map: Vec<usize> = (0..42).collect();

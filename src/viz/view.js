@@ -64,7 +64,7 @@ const map = u32(D.map);
 const errors = D.errors ? f32(D.errors.values) : null;
 
 const camera = new THREE.PerspectiveCamera(35, 1, 0.01, 100);
-camera.position.set(0, 0, 3.6);
+camera.position.set(0, 0, 3.0);
 const controls = new OrbitControls(camera, canvas);
 controls.addEventListener('change', render);
 
