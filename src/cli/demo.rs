@@ -270,9 +270,6 @@ pub fn run(args: DemoArgs) -> Result<()> {
     println!("\n  outputs in {}:", args.out.display());
     println!("    matched/scan-creatureN/  map.txt (line i = reference vertex of scan vertex i), colored.ply, report.json, the scan");
     println!("                             .png snapshot and view.html: open it in a browser to see the two coloured shapes");
-    if let Some(first) = names.first() {
-        println!("  look at a result: open {}", data.matched().join(first).join("view.html").display());
-    }
     println!(
         "    matched/reference-{}.colored.ply  the reference, coloured like the scans",
         manifest.reference
@@ -281,6 +278,12 @@ pub fn run(args: DemoArgs) -> Result<()> {
     println!("    models/model-v{:06}.sfm  the model; training/ its labelled shapes", manifest.version);
     println!("  run the daemon yourself: shapeforest watch --data-dir {}", args.out.display());
     println!("  compare with the WKS baseline and the raw forest: shapeforest eval --synthetic");
+    if let Some(first) = names.first() {
+        println!(
+            "  look at a result: open {} in a browser",
+            data.matched().join(first).join("view.html").display()
+        );
+    }
     println!("  total {:.1} s", started.elapsed().as_secs_f64());
     Ok(())
 }
