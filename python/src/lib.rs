@@ -120,11 +120,17 @@ impl Progress {
         Python::attach(|py| {
             let r = match &self.0 {
                 Some(f) => f.call1(py, (stage, done, total)).map(|_| ()),
+                // On a terminal one line is rewritten in place; in a log, one line per report.
                 None => py.import("sys").and_then(|sys| {
-                    let end = if done >= total { "\n" } else { "" };
-                    sys.getattr("stderr")?
-                        .call_method1("write", (format!("\r{stage}: {done}/{total}{end}"),))?;
-                    sys.getattr("stderr")?.call_method0("flush").map(|_| ())
+                    let err = sys.getattr("stderr")?;
+                    let tty = err.call_method0("isatty").and_then(|t| t.is_truthy()).unwrap_or(false);
+                    let line = match (tty, done >= total) {
+                        (true, false) => format!("\r{stage}: {done}/{total}"),
+                        (true, true) => format!("\r{stage}: {done}/{total}\n"),
+                        (false, _) => format!("{stage}: {done}/{total}\n"),
+                    };
+                    err.call_method1("write", (line,))?;
+                    err.call_method0("flush").map(|_| ())
                 }),
             };
             if let Err(e) = r {

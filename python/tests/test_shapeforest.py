@@ -108,12 +108,14 @@ def test_synthetic_train_and_match_reach_the_accuracy_floor(creatures, forest, t
     np.testing.assert_array_equal(again.predict(scan, top_k=3)[0], labels)
 
 
-def test_training_with_label_arrays_skips_unlabelled_vertices(creatures):
+def test_training_with_label_arrays_skips_unlabelled_vertices(creatures, capsys):
     n = creatures[0].n_vertices
     labels = np.arange(n)
     labels[::2] = -1  # half the vertices unlabelled
-    f = sf.Forest.train(creatures[:2], [labels, labels], n_trees=2, seed=1)
+    f = sf.Forest.train(creatures[:2], [labels, labels], n_trees=2, seed=1, progress=True)
     assert f.n_labels == labels.max() + 1
+    err = capsys.readouterr().err  # not a terminal: one line per report
+    assert "spectra: 2/2\n" in err and "trees: 2/2\n" in err, err
     with pytest.raises(ValueError, match="2 label arrays for 3 meshes"):
         sf.Forest.train(creatures[:3], [labels, labels])
 
