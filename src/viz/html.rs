@@ -114,7 +114,7 @@ fn curve_svg(errors: &[f64]) -> String {
 /// let map: Vec<usize> = (0..s.n_vertices()).collect();
 /// let pair = ViewPair { scan: &s, scan_name: "a", reference: &s, reference_name: "b", map: &map, errors: None };
 /// let html = view_html(&pair, "a → b").unwrap();
-/// assert!(html.contains("<canvas") && html.contains("Three.js Authors"));
+/// assert!(html.contains("<canvas") && html.contains("three.js authors"));
 /// ```
 pub fn view_html(pair: &ViewPair<'_>, title: &str) -> Result<String, VizError> {
     pair.check()?;
