@@ -252,23 +252,23 @@ pub fn read_per_label_map<R: BufRead>(
     one_based: bool,
     n_vertices: usize,
 ) -> Result<Vec<Option<u32>>, ForestError> {
+    let rows = super::read_per_label_rows(reader, one_based, n_vertices)?;
+    Ok(per_vertex_labels(&rows, n_vertices))
+}
+
+/// The per-vertex labels of per-label rows (row `k` = the vertex of label `k`); a vertex named on
+/// several rows keeps the last.
+///
+/// ```
+/// use shapeforest::forest::per_vertex_labels;
+/// assert_eq!(per_vertex_labels(&[Some(2), Some(2), None, Some(0)], 3), vec![Some(3), None, Some(1)]);
+/// ```
+pub fn per_vertex_labels(rows: &[Option<u32>], n_vertices: usize) -> Vec<Option<u32>> {
     let mut labels = vec![None; n_vertices];
-    for (k, line) in reader.lines().enumerate() {
-        let bad = |reason: String| ForestError::LabelMap { line: k + 1, reason };
-        let line = line.map_err(|e| bad(format!("cannot read: {e}")))?;
-        let tok = line.split_whitespace().next().unwrap_or("");
-        if tok.is_empty() {
-            continue;
+    for (k, v) in rows.iter().enumerate() {
+        if let Some(slot) = v.and_then(|v| labels.get_mut(v as usize)) {
+            *slot = Some(k as u32);
         }
-        let v: i64 = tok.parse().map_err(|_| bad(format!("expected a vertex index, found `{tok}`")))?;
-        let v = if one_based { v - 1 } else { v };
-        if v < 0 {
-            continue;
-        }
-        let slot = labels.get_mut(v as usize).ok_or_else(|| {
-            bad(format!("vertex {tok} is out of range for a mesh of {n_vertices} vertices"))
-        })?;
-        *slot = Some(k as u32);
     }
-    Ok(labels)
+    labels
 }
