@@ -89,6 +89,9 @@ class Forest:
     @property
     def n_labels(self) -> int: ...
     @property
+    def reference(self) -> Optional[str]:
+        """Name of the reference the labels are tabulated on (the first training mesh)."""
+    @property
     def n_trees(self) -> int: ...
     @property
     def k(self) -> int: ...
@@ -96,7 +99,9 @@ class Forest:
         """``(labels, probabilities)``, both ``(n, top_k)``, most probable first; ``-1`` / 0 pad."""
     def match(self, scan: Mesh, reference: Mesh, progress: Progress = None) -> npt.NDArray[np.int64]:
         """Dense map ``(n_scan,)``: ``map[i]`` = reference vertex of scan vertex ``i``, as
-        ``shapeforest match`` computes it (forest, then the regulariser)."""
+        ``shapeforest match`` computes it (forest, then the regulariser). The reference must be
+        the model's reference (``forest.reference``) or, for a shared-indexing class, any shape
+        of the class."""
 
 def read_mesh(path: Union[str, PathLike[str]]) -> Mesh:
     """Reads OFF/COFF, OBJ, PLY, TOSCA .vert/.tri, optionally gzipped."""

@@ -91,6 +91,24 @@ fn match_results_get_a_snapshot_and_view_writes_a_page() {
     let page = std::fs::read_to_string(out.join("page.html")).unwrap();
     assert!(page.contains("data-mode=\"error\"") && page.contains("50.0 % within 0.05"));
 
+    // A scan-to-scan map (`match --to B`): the page shows the scan against B.
+    let out2 = dir.path().join("m2");
+    run(bin()
+        .args(["match", "--model"])
+        .arg(data.join("models/model-v000001.sfm"))
+        .arg("--reference")
+        .arg(data.join("labeled/c0.off"))
+        .arg("--mesh")
+        .arg(data.join("incoming/scan.off"))
+        .arg("--to")
+        .arg(data.join("labeled/c1.off"))
+        .arg("--out")
+        .arg(&out2));
+    assert_both_drawn(&out2.join("scan.png"));
+    run(bin().arg("view").arg(&out2));
+    let page = std::fs::read_to_string(out2.join("view.html")).unwrap();
+    assert!(page.contains("scan: scan") && page.contains("reference: c1"), "the page maps onto B");
+
     // Bad folders and bad files are named.
     let o = bin().arg("view").arg(data.join("incoming")).output().unwrap();
     assert!(!o.status.success());

@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use shapeforest::{
     descriptor::{heat_kernel_signature, wave_kernel_signature, HksParams, WksParams},
     eval,
-    forest::{RandomForest, TrainingSet, TrainingShape},
+    forest::{reference_table, ModelReference, RandomForest, TrainingSet, TrainingShape},
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{self, Mesh as CoreMesh},
     regularizer::{regularize, PreparedShape, RegularizerParams},
@@ -523,24 +523,39 @@ impl PyForest {
                 })
                 .collect::<Result<_, String>>()?;
             let names = meshes.iter().enumerate().map(|(i, m)| format!("{} (mesh {i})", m.name));
-            let set = match labels {
-                None => TrainingSet::same_indexing(names.zip(spectra)),
+            // The model stores where its labels lie on the first mesh (the reference), as
+            // `shapeforest train` does: the identity for a shared-indexing class, otherwise that
+            // mesh's labels with those it lacks placed through the other meshes.
+            let first = &meshes[0];
+            let (set, reference) = match &labels {
+                None => (
+                    TrainingSet::same_indexing(names.zip(spectra)),
+                    ModelReference::shared_indexing(&first.name, &first.inner),
+                ),
                 Some(labels) => {
                     let n_labels = labels.iter().flatten().flatten().max().map_or(0, |&l| l as usize + 1);
+                    let donors: Vec<(&CoreMesh, &[Option<u32>])> =
+                        meshes.iter().zip(labels).skip(1).map(|(m, l)| (&*m.inner, &l[..])).collect();
+                    let table = reference_table(n_labels, &first.inner, &labels[0], None, &donors)
+                        .map_err(|e| format!("cannot use {} as the reference: {e}", first.name))?;
                     let shapes = names
                         .zip(spectra)
-                        .zip(labels)
+                        .zip(labels.iter().cloned())
                         .map(|((name, spectrum), labels)| TrainingShape { name, spectrum, labels })
                         .collect();
-                    TrainingSet::new(shapes, n_labels)
+                    (
+                        TrainingSet::new(shapes, n_labels),
+                        ModelReference::new(&first.name, &first.inner, &table),
+                    )
                 }
-            }
-            .map_err(|e| e.to_string())?;
+            };
+            let set = set.map_err(|e| e.to_string())?;
             let trees = AtomicUsize::new(0);
             progress.report("trees", 0, n_trees);
             let on_tree =
                 |_: usize| progress.report("trees", trees.fetch_add(1, Ordering::Relaxed) + 1, n_trees);
-            valid.fit_with_progress(None, &set, &on_tree).map_err(|e| e.to_string())
+            let forest = valid.fit_with_progress(None, &set, &on_tree).map_err(|e| e.to_string())?;
+            forest.with_reference(reference).map_err(|e| e.to_string())
         });
         Ok(Self { inner: Arc::new(inner.map_err(sf_err)?) })
     }
@@ -568,6 +583,12 @@ impl PyForest {
     #[getter]
     fn n_labels(&self) -> usize {
         self.inner.n_labels()
+    }
+
+    /// Name of the reference shape the labels are tabulated on (`None` for an old model file).
+    #[getter]
+    fn reference(&self) -> Option<String> {
+        self.inner.reference().map(|r| r.name.clone())
     }
 
     /// Number of trees.
@@ -617,15 +638,31 @@ impl PyForest {
         reference: &PyMesh,
         progress: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray1<i64>>> {
-        if self.inner.n_labels() != reference.inner.n_vertices() {
-            return Err(sf_err(format!(
-                "the model has {} labels but the reference {} has {} vertices: the reference must be \
-                 a shape whose vertex indices are the model's labels (a shape of the training class)",
-                self.inner.n_labels(),
-                reference.name,
-                reference.inner.n_vertices()
-            )));
-        }
+        // Labels are read through the model's label → reference-vertex table, as `shapeforest
+        // match` reads them; a reference the model cannot place its labels on is refused.
+        let table: Option<Vec<usize>> = match self.inner.reference() {
+            Some(r) => Some(r.table_for(&reference.inner).ok_or_else(|| {
+                sf_err(format!(
+                    "the model maps onto its reference `{}` ({} vertices), and {} ({} vertices) is another \
+                     mesh: pass that reference",
+                    r.name,
+                    r.n_vertices,
+                    reference.name,
+                    reference.inner.n_vertices()
+                ))
+            })?),
+            None if self.inner.n_labels() == reference.inner.n_vertices() => None,
+            None => {
+                return Err(sf_err(format!(
+                    "the model has {} labels but the reference {} has {} vertices, and the model stores no \
+                     reference table (it predates format version 2): use a shape whose vertex indices are \
+                     the model's labels",
+                    self.inner.n_labels(),
+                    reference.name,
+                    reference.inner.n_vertices()
+                )))
+            }
+        };
         let progress = match progress {
             Some(p) => Progress::from(p)?,
             None => Progress(None, false),
@@ -653,7 +690,8 @@ impl PyForest {
             let test = PreparedShape::new(s.inner.clone(), scan_sp, reg.heat).map_err(|e| e.to_string())?;
             let refp = PreparedShape::new(r.inner.clone(), ref_sp, reg.heat).map_err(|e| e.to_string())?;
             progress.report("match", 3, steps);
-            let dense = regularize(&test, &refp, &prediction, None, &reg).map_err(|e| e.to_string())?;
+            let dense =
+                regularize(&test, &refp, &prediction, table.as_deref(), &reg).map_err(|e| e.to_string())?;
             progress.report("match", 4, steps);
             Ok(dense.map)
         });

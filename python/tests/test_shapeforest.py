@@ -83,6 +83,7 @@ def test_heat_geodesics_on_the_unit_sphere():
 def test_synthetic_train_and_match_reach_the_accuracy_floor(creatures, forest, tmp_path):
     reference, scan = creatures[0], creatures[6]
     assert forest.n_labels == reference.n_vertices and forest.n_trees == 10
+    assert forest.reference == "creature0"
     calls = []
     mapped = forest.match(scan, reference, progress=lambda stage, done, total: calls.append((stage, done, total)))
     assert mapped.shape == (scan.n_vertices,) and mapped.dtype == np.int64
@@ -140,7 +141,7 @@ def test_bad_input_raises_with_the_cli_messages(tmp_path, forest, creatures):
     garbage.write_bytes(b"not a model at all")
     with pytest.raises(sf.ShapeforestError, match=f"cannot load the model {garbage}"):
         sf.Forest.load(garbage)
-    with pytest.raises(sf.ShapeforestError, match="labels but the reference icosphere has 162 vertices"):
+    with pytest.raises(sf.ShapeforestError, match="maps onto its reference `creature0` .* icosphere .162 vertices. is another"):
         forest.match(creatures[6], sf.icosphere(2))
     with pytest.raises(ValueError, match="map has 3 entries but truth has 2"):
         sf.geodesic_errors(creatures[0], [0, 1, 2], [0, 1])
@@ -198,3 +199,25 @@ def test_the_readme_example_runs_as_written(tmp_path, monkeypatch, capsys):
     share = float(re.search(r"([\d.]+)% of the vertices within 0.05", out).group(1))
     assert share >= 85.0, out
     assert (tmp_path / "view.html").stat().st_size > 500_000
+
+
+def test_a_reference_with_its_own_vertex_order_is_read_through_the_label_table(creatures):
+    # creature0 with its vertices shuffled: label = original vertex index, so its labels are a
+    # permutation; the model tabulates where each label lies on it.
+    rng = np.random.default_rng(5)
+    base = creatures[0]
+    perm = rng.permutation(base.n_vertices)  # new vertex j = old vertex perm[j]
+    inverse = np.argsort(perm)
+    shuffled = sf.Mesh(base.vertices[perm], inverse[base.faces], name="shuffled0")
+    identity = np.arange(base.n_vertices)
+    labels = [perm] + [identity] * 5
+    forest = sf.Forest.train([shuffled] + creatures[1:6], labels, n_trees=8, seed=0)
+    assert forest.reference == "shuffled0"
+    scan = creatures[6]
+    mapped = forest.match(scan, shuffled)
+    truth = inverse[np.arange(scan.n_vertices)]  # scan vertex i carries label i, at shuffled vertex inverse[i]
+    errors = sf.geodesic_errors(shuffled, mapped, truth, points=np.arange(0, scan.n_vertices, 4))
+    assert (errors <= 0.05).mean() >= 0.85, (errors <= 0.05).mean()
+    # A shape of the class in the original order is another mesh for this model.
+    with pytest.raises(sf.ShapeforestError, match="maps onto its reference `shuffled0`"):
+        forest.match(scan, base)

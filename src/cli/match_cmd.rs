@@ -241,7 +241,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let scan_colors: Vec<[u8; 3]> = dense.map.iter().map(|&r| onto_colors[r]).collect();
     write_colored(&args.out.join(format!("{onto_name}.colored.ply")), &onto, &onto_colors)?;
     write_colored(&args.out.join(format!("{scan_name}.colored.ply")), &scan, &scan_colors)?;
-    super::visual::write_snapshot(&args.out, &scan_name, &scan, &reference, &dense.map)?;
+    super::visual::write_snapshot(&args.out, &scan_name, &scan, &onto, &dense.map)?;
     let write_s = t0.elapsed().as_secs_f64();
 
     let confidence = prediction.mean_confidence();

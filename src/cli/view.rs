@@ -1,7 +1,8 @@
 //! `shapeforest view RESULT_DIR`: the interactive `view.html` of a match result.
 //!
 //! RESULT_DIR is a folder written by `shapeforest match` (`SCAN.map.txt`, `SCAN.colored.ply`,
-//! `REF.colored.ply`, `SCAN.report.json`) or a daemon's `matched/NAME/` (the reference is
+//! `REF.colored.ply`, `SCAN.report.json`; with `--to B`, `SCAN.to.B.map.txt` and
+//! `B.colored.ply`) or a daemon's `matched/NAME/` (the reference is
 //! `../reference-REF.colored.ply`). The coloured PLY files carry the geometry (vertex order is
 //! that of the inputs). An optional `SCAN.errors.csv` (`vertex,error` lines, errors normalised
 //! by √area of the reference) adds the error heat map and the cumulative curve.
@@ -113,10 +114,18 @@ pub fn run(args: ViewArgs) -> Result<()> {
     for map_path in &maps {
         let file = map_path.file_name().and_then(|n| n.to_str()).unwrap_or_default();
         let name = file.trim_end_matches(".map.txt");
+        // `match --to B` writes SCAN.to.B.map.txt: a map onto B, whose coloured mesh is beside it.
+        let (name, onto) = match name.split_once(".to.") {
+            Some((scan, onto)) => (scan, Some(onto)),
+            None => (name, None),
+        };
         let scan_path = dir.join(format!("{name}.colored.ply"));
         let scan =
             read_mesh(&scan_path).with_context(|| format!("cannot read mesh {}", scan_path.display()))?;
-        let ref_path = find_reference(dir, name)?;
+        let ref_path = match onto {
+            Some(b) => dir.join(format!("{b}.colored.ply")),
+            None => find_reference(dir, name)?,
+        };
         let reference =
             read_mesh(&ref_path).with_context(|| format!("cannot read mesh {}", ref_path.display()))?;
         let map = read_map(map_path, scan.n_vertices(), reference.n_vertices())?;
@@ -136,7 +145,7 @@ pub fn run(args: ViewArgs) -> Result<()> {
         let out = match &args.out {
             Some(p) if maps.len() == 1 => p.clone(),
             _ if maps.len() == 1 => dir.join("view.html"),
-            _ => dir.join(format!("{name}.view.html")),
+            _ => dir.join(format!("{}.view.html", file.trim_end_matches(".map.txt"))),
         };
         write_view(&out, &pair)?;
         println!("wrote {} ({name} → {ref_name}); open it in a browser", out.display());
