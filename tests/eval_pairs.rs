@@ -16,7 +16,7 @@ use shapeforest::{
 
 #[test]
 fn pairs_of_unseen_shuffled_shapes_are_mapped_onto_each_other() {
-    let family = common::shuffled_family(7);
+    let family = common::labels::shuffled_family(7);
     let shapes: Vec<ProtocolShape> = family
         .into_iter()
         .enumerate()
@@ -61,8 +61,8 @@ fn pairs_of_unseen_shuffled_shapes_are_mapped_onto_each_other() {
 fn eval_pairs_file_names_the_line_of_an_unknown_shape() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    for (i, s) in common::shuffled_family(3).iter().enumerate() {
-        common::write_shape(d, &format!("s{i}"), s);
+    for (i, s) in common::labels::shuffled_family(3).iter().enumerate() {
+        common::labels::write_shape(d, &format!("s{i}"), s);
     }
     std::fs::write(d.join("pairs.txt"), "# pairs\ns1 s2\ns1 nobody\n").unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_shapeforest"))
