@@ -27,7 +27,7 @@ use std::{collections::HashMap, path::PathBuf, sync::Arc, time::Instant};
 
 use serde::{Deserialize, Serialize};
 
-use super::{cumulative_curve, CurveSeries, ErrorSummary, EvalError};
+use super::{CurveSeries, ErrorSummary, EvalError};
 use crate::{
     eval::protocol::ProtocolShape,
     forest::{RandomForestParams, TrainingSet, TrainingShape},
@@ -175,17 +175,8 @@ pub struct PairsTimings {
 impl PairsReport {
     /// Errors of `method` pooled over all pairs: `(strict, symmetric)`.
     pub fn pooled(&self, method: PairMethod) -> (Vec<f64>, Option<Vec<f64>>) {
-        let mut strict = Vec::new();
-        let mut sym: Option<Vec<f64>> = self.has_symmetry.then(Vec::new);
-        for p in &self.pairs {
-            if let Some(e) = p.errors(method) {
-                strict.extend_from_slice(&e.strict);
-                if let (Some(out), Some(s)) = (sym.as_mut(), e.symmetric.as_ref()) {
-                    out.extend_from_slice(s);
-                }
-            }
-        }
-        (strict, sym)
+        let errors = self.pairs.iter().filter_map(|r| r.errors(method));
+        super::pool_errors(self.has_symmetry, errors.map(|e| (&e.strict[..], e.symmetric.as_deref())))
     }
 
     /// Summary of `method` over all pairs: `(strict, symmetric)`.
@@ -196,20 +187,7 @@ impl PairsReport {
 
     /// Cumulative curves, one per method (strict), then the flips-allowed ones.
     pub fn curves(&self, steps: usize) -> Vec<CurveSeries> {
-        let mut out = Vec::new();
-        let mut sym = Vec::new();
-        for m in PairMethod::ALL {
-            let (s, y) = self.pooled(m);
-            out.push(CurveSeries { name: m.name().to_string(), curve: cumulative_curve(&s, steps) });
-            if let Some(y) = y {
-                sym.push(CurveSeries {
-                    name: format!("{} (sym)", m.name()),
-                    curve: cumulative_curve(&y, steps),
-                });
-            }
-        }
-        out.extend(sym);
-        out
+        super::pooled_curves(PairMethod::ALL.iter().map(|&m| (m.name(), self.pooled(m))).collect(), steps)
     }
 }
 
