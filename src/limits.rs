@@ -96,10 +96,33 @@ impl Limits {
                 format!("{} trees exceed limits.max_trees = {}", forest.n_trees(), self.max_trees),
             ),
         ];
-        match checks.into_iter().find(|c| c.0) {
-            Some((_, why)) => Err(format!("the model is outside the limits: {why}")),
-            None => Ok(()),
+        if let Some((_, why)) = checks.into_iter().find(|c| c.0) {
+            return Err(format!("the model is outside the limits: {why}"));
         }
+        // The reference table (format version 2): one vertex per label, on a mesh within the
+        // vertex limit.
+        if let Some(r) = forest.reference() {
+            if r.n_vertices > self.max_vertices {
+                return Err(format!(
+                    "the model is outside the limits: its reference has {} vertices, above limits.max_vertices = {}",
+                    r.n_vertices, self.max_vertices
+                ));
+            }
+            if r.label_to_vertex.len() != forest.n_labels() {
+                return Err(format!(
+                    "the model's reference table has {} entries for {} labels",
+                    r.label_to_vertex.len(),
+                    forest.n_labels()
+                ));
+            }
+            if let Some(v) = r.label_to_vertex.iter().find(|&&v| v as usize >= r.n_vertices) {
+                return Err(format!(
+                    "the model's reference table names vertex {v} of a reference with {} vertices",
+                    r.n_vertices
+                ));
+            }
+        }
+        Ok(())
     }
 }
 

@@ -22,6 +22,10 @@
 
 use std::{sync::Arc, time::Instant};
 
+mod pair;
+
+pub use pair::{invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams};
+
 use faer::Mat;
 use serde::{Deserialize, Serialize};
 

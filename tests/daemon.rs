@@ -1,6 +1,8 @@
 //! The watch-folder daemon, driven as a user drives it: the real binary on a temporary data
 //! folder, files dropped in, results read back, signals and a hard kill.
 
+mod common;
+
 use std::{
     fmt::Write as _,
     path::{Path, PathBuf},
@@ -307,5 +309,41 @@ fn a_killed_daemon_restarts_without_losing_or_repeating_work() {
     assert!(files_in(&inflight).is_empty());
     assert!(files_in(&data.join("rejected")).is_empty(), "nothing rejected");
     assert!(!files_in(&data.join("matched")).iter().any(|f| f.starts_with(".partial")));
+    d.stop();
+}
+
+/// Labelled shapes that each have their own vertex order and `.vts` maps in which several labels
+/// share a vertex (as in remeshed FAUST, where no shape carries every label): the daemon learns
+/// from them, picks a reference, and its maps are right, before and after a restart.
+#[test]
+fn vts_labelled_shapes_with_their_own_vertex_order_train_a_model() {
+    let shapes = common::shuffled_family(8);
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let mut d = Daemon::start(&data, false);
+    let labeled = data.join("labeled");
+    wait_until(&mut d, "the data folder", || labeled.is_dir());
+    for (i, s) in shapes.iter().enumerate().take(5) {
+        std::fs::write(labeled.join(format!("shape{i}.vts")), common::vts(&s.truth)).unwrap();
+        drop_mesh(&labeled, &format!("shape{i}.off"), &s.mesh);
+    }
+    wait_until(&mut d, "a model", || !manifests(&data).is_empty());
+    let manifest = manifests(&data).last().unwrap().clone();
+    let reference: usize =
+        manifest["reference"].as_str().unwrap().strip_prefix("shape").unwrap().parse().unwrap();
+    assert!(!d.log().contains("none can be the reference"), "{}", d.log());
+    drop_mesh(&data.join("incoming"), "scan5.off", &shapes[5].mesh);
+    wait_until(&mut d, "a result", || result_dirs(&data).contains(&"scan5".to_string()));
+    let map = read_map(&data.join("matched/scan5"), "scan5");
+    let acc = common::accuracy(&map, &shapes[5], &shapes[reference]);
+    assert!(acc >= 0.8, "scan5 → shape{reference}: {:.1} % within 0.05", 100.0 * acc);
+    d.stop();
+    // The restarted daemon reads the reference's label table from the model file.
+    let mut d = Daemon::start(&data, false);
+    drop_mesh(&data.join("incoming"), "scan6.off", &shapes[6].mesh);
+    wait_until(&mut d, "a result after restart", || result_dirs(&data).contains(&"scan6".to_string()));
+    let map = read_map(&data.join("matched/scan6"), "scan6");
+    let acc = common::accuracy(&map, &shapes[6], &shapes[reference]);
+    assert!(acc >= 0.8, "after restart, scan6 → shape{reference}: {:.1} % within 0.05", 100.0 * acc);
     d.stop();
 }

@@ -15,7 +15,7 @@ use std::{
     time::{Duration, Instant},
 };
 
-use common::*;
+use common::daemon::*;
 use shapeforest::{
     forest::{fnv1a64, labels_identity, RandomForest, TrainingSet, TrainingShape},
     mesh::write_mesh,

@@ -213,10 +213,10 @@ fn model_round_trip_and_bad_files() {
     let bytes = std::fs::read(&path).unwrap();
     assert!(matches!(RandomForest::from_bytes(b"OFF\n3 1 0\n"), Err(ForestError::NotAModel)));
     assert!(matches!(RandomForest::load(dir.path().join("missing")), Err(ForestError::Io { .. })));
-    let mut v2 = bytes.clone();
-    v2[8] = 2;
-    let e = RandomForest::from_bytes(&v2).unwrap_err();
-    assert!(matches!(e, ForestError::UnsupportedVersion { found: 2, supported: 1 }), "{e}");
+    let mut v3 = bytes.clone();
+    v3[8] = 3;
+    let e = RandomForest::from_bytes(&v3).unwrap_err();
+    assert!(matches!(e, ForestError::UnsupportedVersion { found: 3, oldest: 1, supported: 2 }), "{e}");
     let mut flipped = bytes.clone();
     let mid = bytes.len() / 2;
     flipped[mid] ^= 0x40;

@@ -102,6 +102,23 @@ pub struct EvalArgs {
     /// No progress bars.
     #[arg(long)]
     pub quiet: bool,
+    /// The field's pairwise protocol on these pairs: a file of lines `A B` (shape names of the
+    /// class; `#` starts a comment): each `A` is mapped to `B` and scored on `B` at every
+    /// ground-truth point.
+    #[arg(long, value_name = "FILE", conflicts_with = "synthetic")]
+    pub pairs: Option<PathBuf>,
+    /// A preset of the pairwise protocol: `faust` (FAUST remeshed, `tr_reg_0SP` = subject S,
+    /// pose P): train on one shape of each of subjects 0–5 (`tr_reg_000`, `011`, …, `055`),
+    /// map every ordered pair of the shapes of subjects 6 and 7.
+    #[arg(long, value_enum, conflicts_with_all = ["synthetic", "pairs"])]
+    pub protocol: Option<super::eval_pairs::Preset>,
+    /// With --pairs: the training shapes (comma-separated names; the first is the reference).
+    /// Default: the first --train shapes of the class that are in no pair.
+    #[arg(long, value_delimiter = ',', value_name = "NAMES")]
+    pub train_shapes: Vec<String>,
+    /// With --pairs or --protocol: at most this many pairs (a seeded sample, in file order).
+    #[arg(long)]
+    pub max_pairs: Option<usize>,
 }
 
 /// The class of shapes to evaluate: shapes, mesh files (for the peer script), symmetry.
@@ -450,7 +467,7 @@ fn synthetic_class(args: &EvalArgs, out: &Path) -> Result<Class> {
     })
 }
 
-fn bar(quiet: bool) -> ProgressBar {
+pub(super) fn bar(quiet: bool) -> ProgressBar {
     if quiet {
         return ProgressBar::hidden();
     }
@@ -471,6 +488,10 @@ pub fn run(args: EvalArgs) -> Result<()> {
         Some(dir) => load_class(dir, &args, &args.out)?,
         None => synthetic_class(&args, &args.out)?,
     };
+    if args.pairs.is_some() || args.protocol.is_some() {
+        let symmetry = class.symmetry.as_deref();
+        return super::eval_pairs::run(&args, &class.shapes, &class.files, symmetry, &class.title);
+    }
     let params = ProtocolParams {
         n_train: args.train,
         max_tests: args.tests,
@@ -535,7 +556,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
     Ok(())
 }
 
-fn pct(x: f64) -> String {
+pub(super) fn pct(x: f64) -> String {
     format!("{:5.1}%", 100.0 * x)
 }
 
@@ -599,7 +620,7 @@ fn summary_cols(s: Option<ErrorSummary>) -> String {
     }
 }
 
-fn write_file(path: &Path, text: &str) -> Result<()> {
+pub(super) fn write_file(path: &Path, text: &str) -> Result<()> {
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 

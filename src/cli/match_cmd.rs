@@ -1,10 +1,15 @@
-//! `shapeforest match`: dense correspondence of one mesh to a reference with a trained model.
+//! `shapeforest match`: dense correspondence of one mesh to a reference with a trained model,
+//! or (with `--to`) between two scans through the label space.
 //!
-//! Forest prediction, then the regulariser against the reference. The model's labels must be
-//! the reference's vertex indices (the common indexing of the training shapes). Writes into
-//! `--out`:
+//! Forest prediction, then the regulariser against the reference. Labels are read through a
+//! label → reference-vertex table: the one the model file stores for its reference (any
+//! labelled training shape can be the reference; for a shared-indexing class any shape of the
+//! class), or, for another reference mesh, the one built from its label map
+//! (`--reference-labels`). A reference the model cannot place its labels on is refused, never
+//! matched silently. With `--to B`, `B` is mapped onto the reference, and the scan onto `B`
+//! through that map ([`shapeforest::regularizer::regularize_pair`]). Writes into `--out`:
 //! - `SCAN.map.txt`: a header comment, then line `i` = the reference vertex (0-based) matched to
-//!   scan vertex `i`;
+//!   scan vertex `i` (with `--to B`: `SCAN.to.B.map.txt`, line `i` = the vertex of `B`);
 //! - `REF.colored.ply` and `SCAN.colored.ply`: the reference coloured by a smooth function of
 //!   its coordinates, and the scan coloured through the map (matching parts share colours);
 //! - `SCAN.report.json`: timings, number of sparse matches, orientation score, mean forest
@@ -20,9 +25,9 @@ use std::{
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use shapeforest::{
-    forest::RandomForest,
+    forest::{per_vertex_labels, read_label_map, read_per_label_rows, reference_table, RandomForest},
     mesh::{coordinate_colors, read_mesh, write_colored_ply, Mesh},
-    regularizer::{regularize, PreparedShape, RegularizerParams},
+    regularizer::{regularize, regularize_pair, PairParams, PreparedShape, RegularizerParams},
     spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
 };
 
@@ -32,9 +37,17 @@ pub struct MatchArgs {
     /// Model file written by `shapeforest train` (`RandomForest::save`).
     #[arg(long)]
     pub model: PathBuf,
-    /// Reference mesh whose vertex indices are the model's labels.
+    /// Reference mesh: the model's reference (see `shapeforest info --model`), any shape of a
+    /// shared-indexing class, or another mesh together with `--reference-labels`.
     #[arg(long)]
     pub reference: PathBuf,
+    /// Label map of the reference, when it is not the model's own reference: `.vts` (line k =
+    /// the 1-based vertex of label k) or per vertex (line v = the 0-based label of vertex v).
+    #[arg(long, value_name = "FILE")]
+    pub reference_labels: Option<PathBuf>,
+    /// Map the scan to this other scan instead of the reference (through the label space).
+    #[arg(long, value_name = "MESH")]
+    pub to: Option<PathBuf>,
     /// Mesh to match.
     #[arg(long)]
     pub mesh: PathBuf,
@@ -47,7 +60,75 @@ pub struct MatchArgs {
 }
 
 fn stem(p: &Path) -> String {
-    p.file_stem().and_then(|s| s.to_str()).unwrap_or("mesh").to_string()
+    shapeforest::pipeline::shape_stem(p)
+}
+
+/// The label → reference-vertex table for `reference` (`None`: labels are its vertex indices).
+fn label_table(args: &MatchArgs, forest: &RandomForest, reference: &Mesh) -> Result<Option<Vec<usize>>> {
+    let n_labels = forest.n_labels();
+    if let Some(path) = &args.reference_labels {
+        let file = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let reader = std::io::BufReader::new(file);
+        let is_vts = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("vts"));
+        let (labels, rows) = if is_vts {
+            let rows = read_per_label_rows(reader, true, reference.n_vertices())
+                .with_context(|| format!("bad label map {}", path.display()))?;
+            (per_vertex_labels(&rows, reference.n_vertices()), Some(rows))
+        } else {
+            let labels = read_label_map(reader, false, n_labels)
+                .with_context(|| format!("bad label map {}", path.display()))?;
+            if labels.len() != reference.n_vertices() {
+                bail!(
+                    "{} has {} lines but the reference {} has {} vertices (one label per vertex expected)",
+                    path.display(),
+                    labels.len(),
+                    args.reference.display(),
+                    reference.n_vertices()
+                );
+            }
+            (labels, None)
+        };
+        let t = reference_table(n_labels, reference, &labels, rows.as_deref(), &[])
+            .with_context(|| format!("{} cannot serve as the reference", path.display()))?;
+        if t.unused > 0 {
+            bail!(
+                "the reference labels {} place {} of the model's {} labels; the other {} are not on this \
+                 reference, so points predicted with them would be matched wrongly: use a reference that \
+                 carries every label{}",
+                path.display(),
+                t.exact,
+                n_labels,
+                t.unused,
+                forest
+                    .reference()
+                    .map_or(String::new(), |r| format!(", or the model's own reference `{}`", r.name))
+            );
+        }
+        return Ok(Some(t.table));
+    }
+    match forest.reference() {
+        Some(r) => r.table_for(reference).map(Some).with_context(|| {
+            format!(
+                "the model {} maps onto its reference `{}` ({} vertices), and {} ({} vertices) is another \
+                 mesh: pass that reference, or this mesh's label map with --reference-labels",
+                args.model.display(),
+                r.name,
+                r.n_vertices,
+                args.reference.display(),
+                reference.n_vertices()
+            )
+        }),
+        None if n_labels == reference.n_vertices() => Ok(None),
+        None => bail!(
+            "the model {} has {} labels but the reference {} has {} vertices, and the model stores no \
+             reference table (it predates format version 2): give the reference's label map with \
+             --reference-labels, or use a shape whose vertex indices are the model's labels",
+            args.model.display(),
+            n_labels,
+            args.reference.display(),
+            reference.n_vertices()
+        ),
+    }
 }
 
 fn spectrum(
@@ -79,17 +160,12 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let reference = read_mesh(&args.reference)
         .with_context(|| format!("cannot read mesh {}", args.reference.display()))?;
     let scan = read_mesh(&args.mesh).with_context(|| format!("cannot read mesh {}", args.mesh.display()))?;
+    let target = match &args.to {
+        Some(p) => Some(read_mesh(p).with_context(|| format!("cannot read mesh {}", p.display()))?),
+        None => None,
+    };
     let load_s = t0.elapsed().as_secs_f64();
-    if forest.n_labels() != reference.n_vertices() {
-        bail!(
-            "the model {} has {} labels but the reference {} has {} vertices: the reference must be \
-             a shape whose vertex indices are the model's labels (a shape of the training class)",
-            args.model.display(),
-            forest.n_labels(),
-            args.reference.display(),
-            reference.n_vertices()
-        );
-    }
+    let table = label_table(&args, &forest, &reference)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let cache = match &args.cache {
         Some(d) => {
@@ -117,25 +193,53 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let refp = PreparedShape::new(reference.clone(), ref_spectrum, reg.heat)?;
     let prepare_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
-    let dense = regularize(&test, &refp, &prediction, None, &reg)?;
+    // With --to: the target scan's spectrum, prediction and preparation count in this stage.
+    let (dense, target) = match (target, &args.to) {
+        (Some(target), Some(target_path)) => {
+            let target_spectrum = Arc::new(spectrum(&target, &sp_params, cache.as_ref(), target_path)?);
+            let target_prediction = forest.predict(&target_spectrum).context("forest prediction failed")?;
+            let target = Arc::new(target);
+            let targetp = PreparedShape::new(target.clone(), target_spectrum, reg.heat)?;
+            let pair = regularize_pair(
+                &test,
+                &targetp,
+                &refp,
+                &prediction,
+                &target_prediction,
+                table.as_deref(),
+                &reg,
+                &PairParams::default(),
+            )?;
+            (pair.dense, Some((target, target_path)))
+        }
+        _ => (regularize(&test, &refp, &prediction, table.as_deref(), &reg)?, None),
+    };
     let regularize_s = t0.elapsed().as_secs_f64();
 
     let t0 = Instant::now();
     let scan_name = stem(&args.mesh);
-    let ref_name = stem(&args.reference);
+    let (onto, onto_path) = match &target {
+        Some((t, p)) => (t.clone(), p.as_path()),
+        None => (reference.clone(), args.reference.as_path()),
+    };
+    let onto_name = stem(onto_path);
     let mut text = format!(
-        "# shapeforest match: line i (after this header) = vertex of {} (0-based) matched to vertex i of {}\n",
-        args.reference.display(),
-        args.mesh.display()
+        "# shapeforest match: line i (after this header) = vertex of {:?} (0-based) matched to vertex i of {:?}\n",
+        onto_path.display().to_string(),
+        args.mesh.display().to_string()
     );
     for &r in &dense.map {
         let _ = writeln!(text, "{r}");
     }
-    let map_path = args.out.join(format!("{scan_name}.map.txt"));
+    let map_name = match &target {
+        Some(_) => format!("{scan_name}.to.{onto_name}.map.txt"),
+        None => format!("{scan_name}.map.txt"),
+    };
+    let map_path = args.out.join(map_name);
     std::fs::write(&map_path, text).with_context(|| format!("cannot write {}", map_path.display()))?;
-    let ref_colors = coordinate_colors(&reference);
-    let scan_colors: Vec<[u8; 3]> = dense.map.iter().map(|&r| ref_colors[r]).collect();
-    write_colored(&args.out.join(format!("{ref_name}.colored.ply")), &reference, &ref_colors)?;
+    let onto_colors = coordinate_colors(&onto);
+    let scan_colors: Vec<[u8; 3]> = dense.map.iter().map(|&r| onto_colors[r]).collect();
+    write_colored(&args.out.join(format!("{onto_name}.colored.ply")), &onto, &onto_colors)?;
     write_colored(&args.out.join(format!("{scan_name}.colored.ply")), &scan, &scan_colors)?;
     let write_s = t0.elapsed().as_secs_f64();
 
@@ -144,9 +248,16 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let report = serde_json::json!({
         "mesh": args.mesh.display().to_string(),
         "reference": args.reference.display().to_string(),
+        "to": args.to.as_ref().map(|p| p.display().to_string()),
+        "label_table": match (&args.reference_labels, forest.reference()) {
+            (Some(p), _) => format!("from {}", p.display()),
+            (None, Some(r)) => format!("stored in the model (reference `{}`)", r.name),
+            (None, None) => "labels are reference vertices".to_string(),
+        },
         "model": args.model.display().to_string(),
         "mesh_vertices": scan.n_vertices(),
         "reference_vertices": reference.n_vertices(),
+        "to_vertices": target.as_ref().map(|t| t.0.n_vertices()),
         "n_matches": dense.matches.len(),
         "orientation_score": dense.orientation_score,
         "mirror_rejected": dense.mirror_rejected,
@@ -179,7 +290,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
         "{} → {}: {} vertices matched, {} sparse matches, orientation {:.3}, mean confidence {:.3}; \
          predict {predict_s:.2} s, regularise {regularize_s:.2} s; wrote {}",
         args.mesh.display(),
-        args.reference.display(),
+        onto_path.display(),
         dense.map.len(),
         dense.matches.len(),
         dense.orientation_score,

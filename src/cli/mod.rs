@@ -4,6 +4,7 @@ mod bench;
 mod common;
 mod demo;
 mod eval;
+mod eval_pairs;
 mod info;
 mod match_cmd;
 mod predict;

@@ -5,7 +5,10 @@ use std::{fs::File, io::BufReader, path::PathBuf, sync::Arc, time::Instant};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use shapeforest::{
-    forest::{labels_identity, read_label_map, read_per_label_map, RandomForest, TrainingSet, TrainingShape},
+    forest::{
+        labels_identity, per_vertex_labels, read_label_map, read_per_label_rows, reference_table,
+        ModelReference, RandomForest, TrainingSet, TrainingShape,
+    },
     mesh::Mesh,
     synth::{creature_family, CreatureParams},
 };
@@ -79,6 +82,10 @@ pub struct TrainArgs {
     /// Folder caching spectra between runs (keyed by mesh content and K).
     #[arg(long)]
     pub cache: Option<PathBuf>,
+    /// The training shape (file stem) that `match` maps onto by default; its label → vertex
+    /// table is stored in the model (default: the first shape).
+    #[arg(long)]
+    pub reference: Option<String>,
 }
 
 /// Layout of a label-map file.
@@ -92,18 +99,19 @@ pub enum LabelLayout {
     PerLabel,
 }
 
-/// Reads a per-label (`.vts`-style) map (see [`read_per_label_map`]).
+/// Reads the rows of a per-label (`.vts`-style) map (see [`read_per_label_rows`]).
 fn read_per_label(path: &std::path::Path, one_based: bool, n_vertices: usize) -> Result<Vec<Option<u32>>> {
     let file = std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
-    read_per_label_map(std::io::BufReader::new(file), one_based, n_vertices)
+    read_per_label_rows(std::io::BufReader::new(file), one_based, n_vertices)
         .with_context(|| format!("bad label map {}", path.display()))
 }
 
-/// Named meshes with their labels.
+/// Named meshes with their labels (and the per-label rows they came from, if any).
 struct Labelled {
     name: String,
     mesh: Mesh,
     labels: Vec<Option<u32>>,
+    rows: Option<Vec<Option<u32>>>,
 }
 
 fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
@@ -117,7 +125,12 @@ fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
             .shapes
             .into_iter()
             .enumerate()
-            .map(|(i, mesh)| Labelled { name: format!("creature{i}"), mesh, labels: labels_identity(n) })
+            .map(|(i, mesh)| Labelled {
+                name: format!("creature{i}"),
+                mesh,
+                labels: labels_identity(n),
+                rows: None,
+            })
             .collect();
         return Ok((shapes, n));
     }
@@ -150,7 +163,7 @@ fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
                 eprintln!("skipping {why}");
                 continue;
             }
-            shapes.push(Labelled { name: shape_name(&path), mesh, labels: labels_identity(n) });
+            shapes.push(Labelled { name: shape_name(&path), mesh, labels: labels_identity(n), rows: None });
         }
         let n = n_labels.context("no readable shapes in the class folder")?;
         return Ok((shapes, n));
@@ -176,23 +189,70 @@ fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
             LabelLayout::PerVertex => false,
             LabelLayout::PerLabel => true,
         };
-        let labels = if per_label {
-            read_per_label(label_path, !args.zero_based_vts, mesh.n_vertices())?
+        let (labels, rows) = if per_label {
+            let rows = read_per_label(label_path, !args.zero_based_vts, mesh.n_vertices())?;
+            (per_vertex_labels(&rows, mesh.n_vertices()), Some(rows))
         } else {
             let file =
                 File::open(label_path).with_context(|| format!("cannot open {}", label_path.display()))?;
-            read_label_map(BufReader::new(file), args.one_based, bound)
-                .with_context(|| format!("in label map {}", label_path.display()))?
+            let labels = read_label_map(BufReader::new(file), args.one_based, bound)
+                .with_context(|| format!("in label map {}", label_path.display()))?;
+            (labels, None)
         };
-        shapes.push(Labelled { name: shape_name(mesh_path), mesh, labels });
+        shapes.push(Labelled { name: shape_name(mesh_path), mesh, labels, rows });
     }
     let n = match args.n_labels {
         Some(n) => n,
-        None => {
-            shapes.iter().flat_map(|s| s.labels.iter().flatten()).map(|&l| l as usize + 1).max().unwrap_or(0)
-        }
+        None => shapes
+            .iter()
+            .map(|s| {
+                let per_vertex = s.labels.iter().flatten().map(|&l| l as usize + 1).max().unwrap_or(0);
+                per_vertex.max(s.rows.as_ref().map_or(0, Vec::len))
+            })
+            .max()
+            .unwrap_or(0),
     };
     Ok((shapes, n))
+}
+
+/// Whether every shape's labels are its vertex indices (a `--class` folder, the synthetic family).
+fn is_shared_indexing(shapes: &[Labelled], n_labels: usize) -> bool {
+    shapes.iter().all(|s| {
+        s.rows.is_none()
+            && s.mesh.n_vertices() == n_labels
+            && s.labels.iter().enumerate().all(|(v, l)| *l == Some(v as u32))
+    })
+}
+
+/// The reference table stored in the model: the chosen (or first) shape's labels, with labels it
+/// lacks placed through the other shapes (see [`reference_table`]).
+fn model_reference(shapes: &[Labelled], n_labels: usize, name: Option<&str>) -> Result<ModelReference> {
+    let index = match name {
+        Some(n) => shapes.iter().position(|s| s.name == n).with_context(|| {
+            let names: Vec<&str> = shapes.iter().map(|s| s.name.as_str()).collect();
+            format!("--reference {n} is not a training shape (they are: {})", names.join(", "))
+        })?,
+        None => 0,
+    };
+    let r = &shapes[index];
+    if is_shared_indexing(shapes, n_labels) {
+        return Ok(ModelReference::shared_indexing(&r.name, &r.mesh));
+    }
+    let donors: Vec<(&Mesh, &[Option<u32>])> = shapes
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| *i != index)
+        .map(|(_, s)| (&s.mesh, &s.labels[..]))
+        .collect();
+    let table = reference_table(n_labels, &r.mesh, &r.labels, r.rows.as_deref(), &donors)
+        .with_context(|| format!("cannot use {} as the reference", r.name))?;
+    if table.filled > 0 || table.unused > 0 {
+        eprintln!(
+            "reference {}: {} labels on its own vertices, {} placed through other shapes, {} carried by no shape",
+            r.name, table.exact, table.filled, table.unused
+        );
+    }
+    Ok(ModelReference::new(&r.name, &r.mesh, &table))
 }
 
 pub fn run(args: TrainArgs) -> Result<()> {
@@ -206,6 +266,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
     if shapes.is_empty() {
         bail!("no usable training shape");
     }
+    let reference = model_reference(&shapes, n_labels, args.reference.as_deref())?;
     let t0 = Instant::now();
     let meshes: Vec<&Mesh> = shapes.iter().map(|s| &s.mesh).collect();
     let spectra = spectra(&meshes, args.k, args.cache.as_deref(), "spectra")?;
@@ -231,6 +292,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
     let b = bar.clone();
     let forest = params.fit_with_progress(None, &set, &move |_| b.inc(1))?;
     bar.finish_and_clear();
+    let forest = forest.with_reference(reference)?;
     eprintln!(
         "{} trees on {} shapes ({} samples, {} labels) in {:.1} s; mean leaf support {:.2}",
         forest.n_trees(),
@@ -242,6 +304,11 @@ pub fn run(args: TrainArgs) -> Result<()> {
     );
     forest.save(&args.out)?;
     let size = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
-    println!("model written to {} ({:.1} MiB)", args.out.display(), size as f64 / (1u64 << 20) as f64);
+    println!(
+        "model written to {} ({:.1} MiB; reference {})",
+        args.out.display(),
+        size as f64 / (1u64 << 20) as f64,
+        forest.reference().map_or("none", |r| r.name.as_str())
+    );
     Ok(())
 }

@@ -14,6 +14,7 @@
 //! geodesic solver: the crate's heat method with a fine time step, or fast marching), so the
 //! numeric core here is solver-agnostic and pure.
 
+pub mod pairs;
 pub mod protocol;
 mod report;
 pub mod symmetry;

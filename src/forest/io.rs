@@ -3,7 +3,9 @@
 //! Layout (little-endian): the 8-byte magic `SFOREST\0`, the format version (`u32`), the payload
 //! length (`u64`), the FNV-1a 64-bit checksum of the payload (`u64`), then the payload: a
 //! MessagePack (rmp-serde) encoding of a [`ModelHeader`] (hyper-parameters, label count,
-//! descriptor settings `K` and energy grid) followed by the trees. Writes go to a temporary
+//! descriptor settings `K` and energy grid) followed by the trees and, from version 2, the
+//! optional reference table ([`ModelReference`](super::ModelReference): where each label lies
+//! on the reference shape). Version 1 files (no table) are still read. Writes go to a temporary
 //! file in the same directory, are flushed and synced, then renamed over the target, so a reader
 //! never sees a half-written model. Every failure to read is a typed [`ForestError`].
 
@@ -18,7 +20,9 @@ use crate::descriptor::EnergyGrid;
 /// Magic bytes at the start of a model file.
 pub const MODEL_MAGIC: [u8; 8] = *b"SFOREST\0";
 /// Current model file format version.
-pub const MODEL_FORMAT_VERSION: u32 = 1;
+pub const MODEL_FORMAT_VERSION: u32 = 2;
+/// The oldest format version this build still reads (version 1 has no reference table).
+pub const MODEL_FORMAT_OLDEST: u32 = 1;
 const PREFIX_LEN: usize = 8 + 4 + 8 + 8;
 
 /// The descriptive part of a model file, readable without the trees.
@@ -99,8 +103,12 @@ impl RandomForest {
             u64::from_le_bytes(b)
         };
         let version = u32_at(8);
-        if version != MODEL_FORMAT_VERSION {
-            return Err(ForestError::UnsupportedVersion { found: version, supported: MODEL_FORMAT_VERSION });
+        if !(MODEL_FORMAT_OLDEST..=MODEL_FORMAT_VERSION).contains(&version) {
+            return Err(ForestError::UnsupportedVersion {
+                found: version,
+                oldest: MODEL_FORMAT_OLDEST,
+                supported: MODEL_FORMAT_VERSION,
+            });
         }
         let len = u64_at(12);
         let checksum = u64_at(20);
@@ -147,5 +155,67 @@ impl RandomForest {
             std::fs::read(path).map_err(|e| ForestError::Io { path: path.to_path_buf(), error: e })?;
         Self::from_bytes(&bytes)
             .map_err(|e| ForestError::InFile { path: path.to_path_buf(), inner: Box::new(e) })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::forest::{labels_identity, TrainingSet, TrainingShape};
+    use crate::synth::{creature_family, CreatureParams};
+
+    /// The forest as format version 1 laid it out: no reference table.
+    #[derive(Serialize)]
+    struct ForestV1<'a> {
+        params: &'a RandomForestParams,
+        n_labels: usize,
+        k: usize,
+        grid: EnergyGrid,
+        trees: &'a [super::super::tree::Tree],
+        next_tree_index: u64,
+    }
+
+    #[derive(Serialize)]
+    struct PayloadV1<'a> {
+        header: ModelHeader,
+        forest: ForestV1<'a>,
+    }
+
+    #[test]
+    fn version_1_files_are_still_read() {
+        let fam = creature_family(&CreatureParams { target_vertices: 800, ..Default::default() }, 1).unwrap();
+        let sp = crate::spectral::compute_spectrum(&fam.shapes[0], &crate::spectral::SpectrumParams::new(20))
+            .unwrap();
+        let n = fam.template.n_vertices();
+        let set = TrainingSet::new(
+            vec![TrainingShape {
+                name: "a".into(),
+                spectrum: std::sync::Arc::new(sp),
+                labels: labels_identity(n),
+            }],
+            n,
+        )
+        .unwrap();
+        let forest = RandomForest::params().n_trees(2).fit(&set).unwrap();
+        let v1 = PayloadV1 {
+            header: forest.header(),
+            forest: ForestV1 {
+                params: &forest.params,
+                n_labels: forest.n_labels,
+                k: forest.k,
+                grid: forest.grid,
+                trees: &forest.trees,
+                next_tree_index: forest.next_tree_index,
+            },
+        };
+        let payload = rmp_serde::to_vec(&v1).unwrap();
+        let mut bytes = MODEL_MAGIC.to_vec();
+        bytes.extend_from_slice(&1u32.to_le_bytes());
+        bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        bytes.extend_from_slice(&fnv1a64(&payload).to_le_bytes());
+        bytes.extend_from_slice(&payload);
+        let read = RandomForest::from_bytes(&bytes).unwrap();
+        assert_eq!(read, forest);
+        assert!(read.reference().is_none());
     }
 }

@@ -59,6 +59,7 @@ mod knn;
 mod model;
 mod params;
 mod prediction;
+mod reference;
 mod training;
 mod tree;
 
@@ -67,8 +68,10 @@ pub use knn::WksKnn;
 pub use model::{ForestDescriptor, RandomForest};
 pub use params::{RandomForestParams, RandomForestValidParams};
 pub use prediction::{hit_ratio, Prediction};
+pub use reference::{read_per_label_rows, reference_table, LabelTable, ModelReference};
 pub use training::{
-    labels_identity, read_label_map, read_per_label_map, RejectedShape, TrainingSet, TrainingShape,
+    labels_identity, per_vertex_labels, read_label_map, read_per_label_map, RejectedShape, TrainingSet,
+    TrainingShape,
 };
 
 use thiserror::Error;
@@ -141,10 +144,14 @@ pub enum ForestError {
     #[error("not a shapeforest model file (bad magic bytes)")]
     NotAModel,
     /// The file's format version is not supported.
-    #[error("model format version {found} is not supported (this build reads version {supported})")]
+    #[error(
+        "model format version {found} is not supported (this build reads versions {oldest} to {supported})"
+    )]
     UnsupportedVersion {
         /// Version in the file.
         found: u32,
+        /// Oldest version this build reads.
+        oldest: u32,
         /// Version this build reads.
         supported: u32,
     },

@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::params::{RandomForestParams, RandomForestValidParams};
 use super::prediction::Prediction;
+use super::reference::ModelReference;
 use super::training::TrainingSet;
 use super::tree::{grow_tree, TrainData, Tree};
 use super::ForestError;
@@ -44,12 +45,29 @@ pub struct RandomForest {
     pub(crate) grid: EnergyGrid,
     pub(crate) trees: Vec<Tree>,
     pub(crate) next_tree_index: u64,
+    /// Where the labels lie on the reference shape (absent in models of a shared-indexing
+    /// class, where label = reference vertex, and in files of format version 1).
+    #[serde(default)]
+    pub(crate) reference: Option<ModelReference>,
 }
 
 impl RandomForest {
     /// Default hyper-parameters, to be adjusted with the chained setters.
     pub fn params() -> RandomForestParams {
         RandomForestParams::default()
+    }
+
+    /// The reference shape the labels are tabulated on, if the model carries one (see
+    /// [`ModelReference`]).
+    pub fn reference(&self) -> Option<&ModelReference> {
+        self.reference.as_ref()
+    }
+
+    /// The same forest carrying `reference` (its table must have one entry per label).
+    pub fn with_reference(mut self, reference: ModelReference) -> Result<Self, ForestError> {
+        reference.validate(self.n_labels).map_err(ForestError::IncompatibleModel)?;
+        self.reference = Some(reference);
+        Ok(self)
     }
 
     /// The hyper-parameters this forest was (last) grown with.
@@ -190,6 +208,9 @@ impl RandomForest {
         {
             return Err("the energy grid is invalid".into());
         }
+        if let Some(r) = &self.reference {
+            r.validate(self.n_labels)?;
+        }
         for (ti, t) in self.trees.iter().enumerate() {
             let nl = t.n_leaves();
             if t.nodes.is_empty() || t.leaf_offsets.first() != Some(&0) {
@@ -324,6 +345,7 @@ impl RandomForestValidParams {
             grid,
             trees,
             next_tree_index: first_index + n_new as u64,
+            reference: previous.and_then(|p| p.reference.clone()),
         })
     }
 }

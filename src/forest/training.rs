@@ -283,64 +283,23 @@ pub fn read_per_label_map<R: BufRead>(
     one_based: bool,
     n_vertices: usize,
 ) -> Result<Vec<Option<u32>>, ForestError> {
+    let rows = super::read_per_label_rows(reader, one_based, n_vertices)?;
+    Ok(per_vertex_labels(&rows, n_vertices))
+}
+
+/// The per-vertex labels of per-label rows (row `k` = the vertex of label `k`); a vertex named on
+/// several rows keeps the last.
+///
+/// ```
+/// use shapeforest::forest::per_vertex_labels;
+/// assert_eq!(per_vertex_labels(&[Some(2), Some(2), None, Some(0)], 3), vec![Some(3), None, Some(1)]);
+/// ```
+pub fn per_vertex_labels(rows: &[Option<u32>], n_vertices: usize) -> Vec<Option<u32>> {
     let mut labels = vec![None; n_vertices];
-    let mut placed = 0usize;
-    let mut first: Option<(usize, usize)> = None;
-    let mut one_vertex = true;
-    for (k, line) in reader.lines().enumerate() {
-        let bad = |reason: String| ForestError::LabelMap { line: k + 1, reason };
-        let line = line.map_err(|e| bad(format!("cannot read: {e}")))?;
-        let mut toks = line.split_whitespace();
-        let tok = toks.next().unwrap_or("");
-        if toks.next().is_some() {
-            return Err(bad(format!(
-                "{} values on one line; a per-label map holds one vertex per line",
-                line.split_whitespace().count()
-            )));
-        }
-        if tok.is_empty() {
-            continue;
-        }
-        if k >= u32::MAX as usize {
-            return Err(bad("too many labels".into()));
-        }
-        let v: i64 = tok.parse().map_err(|_| {
-            bad(format!("expected a vertex index, found {}", crate::limits::excerpt(tok.as_bytes(), 24)))
-        })?;
-        let none = if one_based { 0 } else { -1 };
-        if v == none {
-            continue;
-        }
-        if v < none {
-            return Err(bad(format!(
-                "vertex {tok} is negative (only {none} marks a label without a vertex{})",
-                if one_based { "; indices are 1-based" } else { "" }
-            )));
-        }
-        let v = if one_based { v - 1 } else { v };
-        let slot = labels.get_mut(v as usize).ok_or_else(|| {
-            bad(format!(
-                "vertex {tok} is out of range for a mesh of {n_vertices} vertices ({})",
-                if one_based {
-                    "1-based, the .vts convention"
-                } else {
-                    "0-based; if the file is 1-based, as .vts files are, read it as 1-based"
-                }
-            ))
-        })?;
-        *slot = Some(k as u32);
-        placed += 1;
-        match first {
-            None => first = Some((v as usize, k + 1)),
-            Some((f, _)) if f != v as usize => one_vertex = false,
-            _ => {}
+    for (k, v) in rows.iter().enumerate() {
+        if let Some(slot) = v.and_then(|v| labels.get_mut(v as usize)) {
+            *slot = Some(k as u32);
         }
     }
-    if let (Some((v, line)), true, true) = (first, one_vertex, placed >= 2) {
-        return Err(ForestError::LabelMap {
-            line,
-            reason: format!("all {placed} labels are on vertex {v}: a sign of a corrupt map"),
-        });
-    }
-    Ok(labels)
+    labels
 }

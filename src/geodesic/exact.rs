@@ -56,6 +56,52 @@ pub fn dijkstra_distances(mesh: &Mesh, sources: &[usize]) -> Result<Vec<f64>, Ge
     Ok(dist)
 }
 
+/// Multi-source Dijkstra along mesh edges that also says which source is nearest: returns
+/// `(dist, nearest)` with `nearest[v]` the index into `sources` of the source closest to `v`
+/// (`usize::MAX` where no source is reachable, with `dist[v] = ∞`). Ties go to the earlier
+/// vertex popped, so the result is deterministic.
+///
+/// ```
+/// use shapeforest::{geodesic::dijkstra_nearest_source, mesh::Mesh};
+/// let m = Mesh::new(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [5.0, 0.0, 0.0]], vec![[0, 1, 2]]).unwrap();
+/// let (d, near) = dijkstra_nearest_source(&m, &[0, 2]).unwrap();
+/// assert_eq!(near, vec![0, 0, 1]);
+/// assert_eq!(d[1], 1.0);
+/// ```
+pub fn dijkstra_nearest_source(
+    mesh: &Mesh,
+    sources: &[usize],
+) -> Result<(Vec<f64>, Vec<usize>), GeodesicError> {
+    check_sources(sources, mesh.n_vertices())?;
+    let graph = EdgeGraph::new(mesh);
+    let n = mesh.n_vertices();
+    let mut dist = vec![f64::INFINITY; n];
+    let mut nearest = vec![usize::MAX; n];
+    let mut heap = BinaryHeap::new();
+    for (i, &s) in sources.iter().enumerate() {
+        if dist[s] > 0.0 {
+            dist[s] = 0.0;
+            nearest[s] = i;
+            heap.push(Entry { dist: 0.0, vertex: s });
+        }
+    }
+    while let Some(Entry { dist: d, vertex: v }) = heap.pop() {
+        if d > dist[v] {
+            continue;
+        }
+        for k in graph.offsets[v]..graph.offsets[v + 1] {
+            let w = graph.targets[k];
+            let nd = d + graph.lengths[k];
+            if nd < dist[w] {
+                dist[w] = nd;
+                nearest[w] = nearest[v];
+                heap.push(Entry { dist: nd, vertex: w });
+            }
+        }
+    }
+    Ok((dist, nearest))
+}
+
 /// Runs Dijkstra from the entries in `heap`, lowering `dist` wherever a shorter path is found.
 /// With `dist` holding an existing field and the heap one new source at 0, this is the
 /// incremental min-update used by farthest point sampling: it only visits vertices that

@@ -64,7 +64,7 @@ mod fps;
 mod heat;
 mod topology;
 
-pub use exact::{dijkstra_distances, fast_marching_distances, FastMarchingSolver};
+pub use exact::{dijkstra_distances, dijkstra_nearest_source, fast_marching_distances, FastMarchingSolver};
 pub use fps::{
     farthest_from_centroid, farthest_point_sampling_euclidean, farthest_point_sampling_geodesic,
     SamplingMetric,

@@ -14,7 +14,7 @@ pub mod sdf;
 mod skinning;
 
 pub use creature::{creature_family, creature_template, Creature, CreatureParams, ShapeFamily, PART_NAMES};
-pub use primitives::{grid_plane, icosphere, torus};
+pub use primitives::{grid_plane, icosphere, shuffle_vertices, torus};
 
 use thiserror::Error;
 

@@ -148,3 +148,27 @@ pub fn torus(nu: usize, nv: usize, major: f64, minor: f64) -> Mesh {
     }
     Mesh { vertices, faces }
 }
+
+/// The same surface with its vertices in another (seeded, random) order, as a shape
+/// triangulated on its own has no index in common with another: returns the shuffled mesh and
+/// `new_index[old vertex]`. Faces are remapped, so geometry and connectivity are unchanged.
+///
+/// ```
+/// use shapeforest::synth::{icosphere, shuffle_vertices};
+/// let m = icosphere(1, 1.0);
+/// let (s, new_index) = shuffle_vertices(&m, 7).unwrap();
+/// assert_eq!(s.vertices[new_index[5]], m.vertices[5]);
+/// assert!((s.surface_area() - m.surface_area()).abs() < 1e-12);
+/// ```
+pub fn shuffle_vertices(mesh: &Mesh, seed: u64) -> Result<(Mesh, Vec<usize>), crate::mesh::MeshError> {
+    use rand::{seq::SliceRandom, SeedableRng};
+    let n = mesh.n_vertices();
+    let mut new_index: Vec<usize> = (0..n).collect();
+    new_index.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed));
+    let mut vertices = vec![[0.0; 3]; n];
+    for (old, &new) in new_index.iter().enumerate() {
+        vertices[new] = mesh.vertices[old];
+    }
+    let faces = mesh.faces.iter().map(|f| [new_index[f[0]], new_index[f[1]], new_index[f[2]]]).collect();
+    Ok((Mesh::new(vertices, faces)?, new_index))
+}

@@ -16,7 +16,9 @@ use std::{collections::HashMap, fs, path::Path, sync::Arc, time::Instant};
 use serde::Deserialize;
 
 use crate::{
-    forest::{RandomForest, RandomForestValidParams, TrainingSet, TrainingShape},
+    forest::{
+        reference_table, ModelReference, RandomForest, RandomForestValidParams, TrainingSet, TrainingShape,
+    },
     geodesic::HeatParams,
     mesh::{read_mesh_limited, write_mesh, Mesh},
     pipeline::{
@@ -169,6 +171,17 @@ pub fn label_table(labels: &[Option<u32>], n_labels: usize) -> Result<Vec<usize>
     }
 }
 
+/// The per-label rows of a job's `.vts` label file (`None` for other label files, or when it
+/// cannot be read again: the per-vertex labels read at ingest are then all there is).
+fn label_rows(job: &Job, n_vertices: usize) -> Option<Vec<Option<u32>>> {
+    let path = job.labels_file.as_ref()?;
+    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("vts")) {
+        return None;
+    }
+    let file = fs::File::open(path).ok()?;
+    crate::forest::read_per_label_rows(std::io::BufReader::new(file), true, n_vertices).ok()
+}
+
 /// A stored training shape read back: mesh, labels, spectrum.
 type StoredParts = (Arc<Mesh>, Vec<Option<u32>>, Spectrum);
 
@@ -251,14 +264,19 @@ pub fn load_live_model_for(
         let (mesh, labels, spectrum) =
             load_stored(&data.training(), &manifest.reference, &params, cache.as_ref(), &needs.limits)
                 .map_err(|e| format!("reference: {e}"))?;
-        let table = label_table(&labels, forest.n_labels()).map_err(|missing| {
-            format!(
-                "its reference `{}` lacks {} of its {} labels",
-                manifest.reference,
-                missing.len(),
-                forest.n_labels()
-            )
-        })?;
+        // The model's own table (format version 2) for its reference; older models had
+        // references that carry every label.
+        let table = match forest.reference().and_then(|r| r.table_for(&mesh)) {
+            Some(t) => t,
+            None => label_table(&labels, forest.n_labels()).map_err(|missing| {
+                format!(
+                    "its reference `{}` lacks {} of its {} labels",
+                    manifest.reference,
+                    missing.len(),
+                    forest.n_labels()
+                )
+            })?,
+        };
         let reference = PreparedShape::new(mesh, Arc::new(spectrum), heat).map_err(|e| e.to_string())?;
         Ok(ModelState {
             version: manifest.version,
@@ -278,6 +296,9 @@ pub fn load_live_model_for(
     }
     Ok(found)
 }
+
+/// A reference chosen for a first model: name, prepared shape, label → vertex table.
+type ChosenReference = (String, Arc<PreparedShape>, Arc<Vec<usize>>);
 
 /// Learns from labelled shapes and publishes new model versions.
 pub struct TrainerSink {
@@ -437,6 +458,63 @@ impl TrainerSink {
         Ok(())
     }
 
+    /// The reference of a first model among the accepted shapes: the configured one, else the
+    /// one whose own labels (per-label rows for `.vts` maps) cover most of the label set; labels
+    /// it lacks are placed through the other shapes ([`reference_table`]). Fails, with the
+    /// reason for the report, when no shape can serve.
+    fn choose_reference(
+        &self,
+        accepted: &[(Job, SpectralShape, TrainingShape)],
+        rows: &HashMap<u64, Vec<Option<u32>>>,
+        n_labels: usize,
+    ) -> Result<ChosenReference, String> {
+        if n_labels == 0 {
+            return Err("no vertex of these labelled shapes carries a label".to_string());
+        }
+        let candidates: Vec<usize> = match &self.config.reference {
+            Some(r) => (0..accepted.len()).filter(|&i| &accepted[i].0.name == r).collect(),
+            None => (0..accepted.len()).collect(),
+        };
+        let mut best: Option<(usize, crate::forest::LabelTable)> = None;
+        for &i in &candidates {
+            let (job, shape, ts) = &accepted[i];
+            let donors: Vec<(&Mesh, &[Option<u32>])> = accepted
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != i)
+                .map(|(_, a)| (a.1.shape.mesh.as_ref(), &a.2.labels[..]))
+                .collect();
+            let own = rows.get(&job.id).map(Vec::as_slice);
+            if let Ok(t) = reference_table(n_labels, &shape.shape.mesh, &ts.labels, own, &donors) {
+                if best.as_ref().is_none_or(|(_, b)| t.exact > b.exact) {
+                    best = Some((i, t));
+                }
+            }
+        }
+        let Some((i, t)) = best else {
+            return Err(match &self.config.reference {
+                Some(r) => {
+                    format!("the reference `{r}` is not among these shapes or carries none of their labels")
+                }
+                None => "none of these labelled shapes carries labels that a reference can hold".to_string(),
+            });
+        };
+        let (job, shape, ts) = &accepted[i];
+        if t.filled > 0 || t.unused > 0 {
+            tracing::info!(
+                reference = %job.name,
+                "reference `{}`: {} labels on its own vertices, {} placed through the other shapes, {} carried by none",
+                job.name,
+                t.exact,
+                t.filled,
+                t.unused
+            );
+        }
+        let prepared = PreparedShape::new(shape.shape.mesh.clone(), ts.spectrum.clone(), self.heat)
+            .map_err(|e| e.to_string())?;
+        Ok((job.name.clone(), Arc::new(prepared), Arc::new(t.table)))
+    }
+
     /// One model update with the pending shapes.
     fn update(&mut self) -> Result<(), String> {
         if self.pending.is_empty() {
@@ -465,6 +543,13 @@ impl TrainerSink {
         if fresh.is_empty() {
             return Ok(());
         }
+        // Per-label rows of `.vts` label files (several labels may share a vertex, so the
+        // per-vertex labels alone lose some): they size the label set and place the labels on
+        // the reference.
+        let rows: HashMap<u64, Vec<Option<u32>>> = fresh
+            .iter()
+            .filter_map(|(job, shape)| label_rows(job, shape.shape.mesh.n_vertices()).map(|r| (job.id, r)))
+            .collect();
         let n_labels = match &current {
             Some(m) => m.forest.n_labels(),
             None => fresh
@@ -472,6 +557,7 @@ impl TrainerSink {
                 .filter_map(|(_, s)| s.shape.labels.as_ref())
                 .flat_map(|l| l.iter().flatten())
                 .map(|&l| l as usize + 1)
+                .chain(rows.values().map(Vec::len))
                 .max()
                 .unwrap_or(0),
         };
@@ -501,6 +587,21 @@ impl TrainerSink {
         if accepted.is_empty() {
             return Ok(());
         }
+        // The reference: kept from the current model, else the new shape that carries the most
+        // labels (or the configured one), with the labels it lacks placed through the others.
+        let (reference_name, reference, table) = match &current {
+            Some(m) => (m.reference_name.clone(), m.reference.clone(), m.label_to_vertex.clone()),
+            None => match self.choose_reference(&accepted, &rows, n_labels) {
+                Ok(chosen) => chosen,
+                Err(why) => {
+                    // Nothing can be learnt from this set: say so for every shape of it.
+                    for (job, _, _) in &accepted {
+                        reject_or_defer(&self.data, job, &Failure::bad_input("trainer", why.clone()))?;
+                    }
+                    return Ok(());
+                }
+            },
+        };
         let k = current.as_ref().map_or(accepted[0].1.spectrum.k(), |m| m.forest.k());
         self.load_known(k)?;
         // Stored before the fit (a crash during it resumes from training/). A shape that cannot
@@ -525,40 +626,15 @@ impl TrainerSink {
         shapes.extend(accepted.iter().map(|a| a.2.clone()));
         shapes.sort_by_key(|a| super::source::natural_key(&a.name));
         let set = TrainingSet::new(shapes, n_labels).map_err(|e| e.to_string())?;
-        let forest = self
+        let mut forest = self
             .params
             .fit_with(current.as_ref().map(|m| m.forest.as_ref()), &set)
             .map_err(|e| format!("training failed: {e}"))?;
-        // The reference: kept from the current model, else chosen among the shapes.
-        let (reference_name, reference, table) = match &current {
-            Some(m) => (m.reference_name.clone(), m.reference.clone(), m.label_to_vertex.clone()),
-            None => {
-                let candidates: Vec<&TrainingShape> = match &self.config.reference {
-                    Some(r) => set.shapes().iter().filter(|s| &s.name == r).collect(),
-                    None => set.shapes().iter().collect(),
-                };
-                let chosen = candidates
-                    .iter()
-                    .find_map(|s| label_table(&s.labels, n_labels).ok().map(|t| (*s, t)))
-                    .ok_or_else(|| match &self.config.reference {
-                        Some(r) => {
-                            format!("the reference `{r}` is not a training shape carrying every label")
-                        }
-                        None => {
-                            "no training shape carries every label, so none can be the reference".to_string()
-                        }
-                    })?;
-                let (ts, table) = chosen;
-                let mesh = accepted
-                    .iter()
-                    .find(|a| a.0.name == ts.name)
-                    .map(|a| a.1.shape.mesh.clone())
-                    .ok_or_else(|| format!("reference `{}` not among the new shapes", ts.name))?;
-                let prepared =
-                    PreparedShape::new(mesh, ts.spectrum.clone(), self.heat).map_err(|e| e.to_string())?;
-                (ts.name.clone(), Arc::new(prepared), Arc::new(table))
-            }
-        };
+        if forest.reference().is_none() {
+            let table = crate::forest::LabelTable { table: table.to_vec(), exact: 0, filled: 0, unused: 0 };
+            let r = ModelReference::new(&reference_name, &reference.mesh, &table);
+            forest = forest.with_reference(r).map_err(|e| e.to_string())?;
+        }
         let on_disk = latest_manifest(&self.data.models()).map_or(0, |m| m.version);
         let version = current.as_ref().map_or(0, |m| m.version).max(on_disk) + 1;
         let names: Vec<String> = set.shapes().iter().map(|s| s.name.clone()).collect();

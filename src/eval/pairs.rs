@@ -1,0 +1,462 @@
+//! The field's pairwise protocol: maps between pairs of test shapes, scored on the target.
+//!
+//! The shape-correspondence literature (FAUST, SCAPE, SHREC'19 tables) scores a method by the
+//! maps it gives between **pairs of test shapes**, none of them seen in training: for a pair
+//! `(A, B)` and every corresponded point `k` (row `k` of the ground-truth tables), vertex
+//! `truth_A[k]` is mapped to a vertex `m` of `B`, and its error is the geodesic distance on `B`
+//! from `m` to `truth_B[k]`, divided by `√area(B)`. Tables give the mean error ×100 over all
+//! points of all pairs, strict (no symmetric allowance); the fraction within 0.05 and 0.1 and
+//! the cumulative curve complete it. With a symmetry map of the labels the flips-allowed
+//! figures are given beside them.
+//!
+//! One forest is trained on the given training shapes; its first shape is the reference. Two
+//! maps `A → B` are measured on the same points:
+//!
+//! | [`PairMethod`] | map |
+//! |---|---|
+//! | `Pair` | [`crate::regularizer::regularize_pair`]: `A`'s posterior read through `B`'s map onto the reference and regularised against `B` |
+//! | `Composed` | `A → reference` and `B → reference`, each regularised, composed by inverting the second ([`crate::regularizer::invert_map`]) |
+//!
+//! Each shape's map onto the reference is computed once, whatever the number of pairs it is in.
+//! Distances on `B` come from the heat method (`t = h²`), in blocks of sources, so memory stays
+//! `O(n_B · block)` whatever the number of points. The protocol is pure orchestration: no
+//! printing; progress through an optional callback.
+
+use std::{collections::HashMap, path::PathBuf, sync::Arc, time::Instant};
+
+use serde::{Deserialize, Serialize};
+
+use super::{cumulative_curve, CurveSeries, ErrorSummary, EvalError};
+use crate::{
+    eval::protocol::ProtocolShape,
+    forest::{RandomForestParams, TrainingSet, TrainingShape},
+    geodesic::{HeatMethodSolver, HeatParams},
+    regularizer::{regularize, regularize_onto, DenseMap, PairParams, PreparedShape, RegularizerParams},
+    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
+    Error,
+};
+
+/// A measured pairwise method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum PairMethod {
+    /// Regularised against the target (the method).
+    Pair,
+    /// Two maps onto the reference, composed.
+    Composed,
+}
+
+impl PairMethod {
+    /// All methods, in report order.
+    pub const ALL: [PairMethod; 2] = [PairMethod::Pair, PairMethod::Composed];
+
+    /// A short name for tables and CSV files.
+    ///
+    /// ```
+    /// use shapeforest::eval::pairs::PairMethod;
+    /// assert_eq!(PairMethod::Pair.name(), "pair+reg");
+    /// ```
+    pub fn name(self) -> &'static str {
+        match self {
+            PairMethod::Pair => "pair+reg",
+            PairMethod::Composed => "composed",
+        }
+    }
+}
+
+/// Settings of the pairwise protocol.
+#[derive(Clone, Debug)]
+pub struct PairsParams {
+    /// Training shapes (indices into the shape list); the first is the reference.
+    pub training: Vec<usize>,
+    /// Pairs `(A, B)` to map `A → B` (indices into the shape list).
+    pub pairs: Vec<(usize, usize)>,
+    /// Forest hyper-parameters.
+    pub forest: RandomForestParams,
+    /// Spectrum settings (default 100 eigenpairs).
+    pub spectrum: SpectrumParams,
+    /// Regulariser settings.
+    pub regularizer: RegularizerParams,
+    /// Heat-method settings of the evaluation distances.
+    pub eval_heat: HeatParams,
+    /// Spectrum cache directory (`None`: no cache).
+    pub cache_dir: Option<PathBuf>,
+    /// Sources per block of evaluation distance fields (default 512).
+    pub block: usize,
+    /// Settings of the pair step.
+    pub pair: PairParams,
+}
+
+impl Default for PairsParams {
+    fn default() -> Self {
+        Self {
+            training: Vec::new(),
+            pairs: Vec::new(),
+            forest: RandomForestParams::default(),
+            spectrum: SpectrumParams::new(100),
+            regularizer: RegularizerParams::default(),
+            eval_heat: HeatParams::default(),
+            cache_dir: None,
+            block: 512,
+            pair: PairParams::default(),
+        }
+    }
+}
+
+/// Errors of one method on one pair.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PairErrors {
+    /// The method.
+    pub method: PairMethod,
+    /// Strict errors, one per corresponded point.
+    pub strict: Vec<f64>,
+    /// Flips-allowed errors, when a symmetry map was given.
+    pub symmetric: Option<Vec<f64>>,
+}
+
+/// The result of one pair.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PairResult {
+    /// Source shape `A` (index into the shape list).
+    pub a: usize,
+    /// Target shape `B`.
+    pub b: usize,
+    /// Errors per method, in [`PairMethod::ALL`] order.
+    pub methods: Vec<PairErrors>,
+    /// Seconds spent regularising `A` against `B` (the step specific to the pair).
+    pub pair_s: f64,
+}
+
+impl PairResult {
+    /// The errors of `method`.
+    pub fn errors(&self, method: PairMethod) -> Option<&PairErrors> {
+        self.methods.iter().find(|m| m.method == method)
+    }
+}
+
+/// The result of the pairwise protocol.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PairsReport {
+    /// Shape names, in input order.
+    pub shape_names: Vec<String>,
+    /// Training shapes (the first is the reference).
+    pub training: Vec<usize>,
+    /// Whether flips-allowed errors were computed.
+    pub has_symmetry: bool,
+    /// Corresponded points evaluated per pair.
+    pub points_per_pair: usize,
+    /// Seconds: spectra, training, maps onto the reference (all shapes), evaluation fields.
+    pub timings: PairsTimings,
+    /// One result per pair, in input order.
+    pub pairs: Vec<PairResult>,
+}
+
+/// Seconds per stage of [`run_pairs`].
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize)]
+pub struct PairsTimings {
+    /// Spectra (or cache reads) of every shape used.
+    pub spectra_s: f64,
+    /// Training the forest.
+    pub train_s: f64,
+    /// Predicting and regularising every test shape onto the reference.
+    pub to_reference_s: f64,
+    /// Regularising the pairs.
+    pub pairs_s: f64,
+    /// Evaluation distance fields.
+    pub eval_s: f64,
+}
+
+impl PairsReport {
+    /// Errors of `method` pooled over all pairs: `(strict, symmetric)`.
+    pub fn pooled(&self, method: PairMethod) -> (Vec<f64>, Option<Vec<f64>>) {
+        let mut strict = Vec::new();
+        let mut sym: Option<Vec<f64>> = self.has_symmetry.then(Vec::new);
+        for p in &self.pairs {
+            if let Some(e) = p.errors(method) {
+                strict.extend_from_slice(&e.strict);
+                if let (Some(out), Some(s)) = (sym.as_mut(), e.symmetric.as_ref()) {
+                    out.extend_from_slice(s);
+                }
+            }
+        }
+        (strict, sym)
+    }
+
+    /// Summary of `method` over all pairs: `(strict, symmetric)`.
+    pub fn summary(&self, method: PairMethod) -> (ErrorSummary, Option<ErrorSummary>) {
+        let (s, y) = self.pooled(method);
+        (ErrorSummary::of(&s), y.map(|y| ErrorSummary::of(&y)))
+    }
+
+    /// Cumulative curves, one per method (strict), then the flips-allowed ones.
+    pub fn curves(&self, steps: usize) -> Vec<CurveSeries> {
+        let mut out = Vec::new();
+        let mut sym = Vec::new();
+        for m in PairMethod::ALL {
+            let (s, y) = self.pooled(m);
+            out.push(CurveSeries { name: m.name().to_string(), curve: cumulative_curve(&s, steps) });
+            if let Some(y) = y {
+                sym.push(CurveSeries {
+                    name: format!("{} (sym)", m.name()),
+                    curve: cumulative_curve(&y, steps),
+                });
+            }
+        }
+        out.extend(sym);
+        out
+    }
+}
+
+/// Progress of [`run_pairs`].
+#[derive(Clone, Copy, Debug)]
+pub enum PairsEvent<'a> {
+    /// A stage started: "spectra", "train", "to-reference", "pairs".
+    Stage(&'static str),
+    /// A shape is mapped onto the reference (`done` of `total`).
+    ToReference {
+        /// Shapes done.
+        done: usize,
+        /// Shapes in all.
+        total: usize,
+        /// The shape.
+        name: &'a str,
+    },
+    /// A pair is done.
+    PairDone {
+        /// Pairs done.
+        done: usize,
+        /// Pairs in all.
+        total: usize,
+        /// Source shape.
+        a: &'a str,
+        /// Target shape.
+        b: &'a str,
+    },
+}
+
+fn invalid(msg: String) -> Error {
+    EvalError::InvalidInput(msg).into()
+}
+
+/// Checks the shapes, the symmetry, the training set and the pairs.
+fn check(shapes: &[ProtocolShape], symmetry: Option<&[usize]>, params: &PairsParams) -> Result<usize, Error> {
+    let n_labels = shapes.first().map_or(0, |s| s.truth.len());
+    if n_labels == 0 {
+        return Err(invalid("the pairwise protocol needs shapes with ground-truth tables".into()));
+    }
+    for s in shapes {
+        if s.truth.len() != n_labels {
+            return Err(invalid(format!(
+                "shape {} has {} ground-truth points, {} has {n_labels}",
+                s.name,
+                s.truth.len(),
+                shapes[0].name
+            )));
+        }
+        if let Some(&v) = s.truth.iter().find(|&&v| v >= s.mesh.n_vertices()) {
+            return Err(invalid(format!(
+                "shape {}: ground-truth vertex {v} outside its {} vertices",
+                s.name,
+                s.mesh.n_vertices()
+            )));
+        }
+    }
+    if let Some(sym) = symmetry {
+        if sym.len() != n_labels || sym.iter().any(|&k| k >= n_labels) {
+            return Err(invalid(format!("symmetry map of {} entries for {n_labels} labels", sym.len())));
+        }
+    }
+    if params.training.is_empty() {
+        return Err(invalid("the pairwise protocol needs at least one training shape".into()));
+    }
+    if params.pairs.is_empty() {
+        return Err(invalid("no pairs to evaluate".into()));
+    }
+    let n = shapes.len();
+    if let Some(&i) = params.training.iter().find(|&&i| i >= n) {
+        return Err(invalid(format!("training shape index {i} outside the {n} shapes")));
+    }
+    for &(a, b) in &params.pairs {
+        if a >= n || b >= n {
+            return Err(invalid(format!("pair ({a}, {b}) outside the {n} shapes")));
+        }
+        if a == b {
+            return Err(invalid(format!("pair of {} with itself", shapes[a].name)));
+        }
+    }
+    Ok(n_labels)
+}
+
+/// Runs the pairwise protocol (see the module documentation).
+///
+/// `symmetry`, when given, maps each label to the label at its mirror image; it enables the
+/// flips-allowed figures. Shapes in a pair may also be training shapes (the field's protocol
+/// keeps them apart; the caller chooses).
+pub fn run_pairs(
+    shapes: &[ProtocolShape],
+    symmetry: Option<&[usize]>,
+    params: &PairsParams,
+    mut progress: Option<&mut dyn FnMut(PairsEvent<'_>)>,
+) -> Result<PairsReport, Error> {
+    let n_labels = check(shapes, symmetry, params)?;
+    let forest_params = params.forest.clone().check()?;
+    let cache = match &params.cache_dir {
+        Some(d) => Some(SpectrumCache::new(d.clone())?),
+        None => None,
+    };
+    let mut emit = |e: PairsEvent<'_>| {
+        if let Some(cb) = progress.as_mut() {
+            cb(e);
+        }
+    };
+    let mut timings = PairsTimings::default();
+
+    // Spectra of every shape used.
+    emit(PairsEvent::Stage("spectra"));
+    let t0 = Instant::now();
+    let mut tested: Vec<usize> = params.pairs.iter().flat_map(|&(a, b)| [a, b]).collect();
+    tested.sort_unstable();
+    tested.dedup();
+    let mut spectra: HashMap<usize, Arc<Spectrum>> = HashMap::new();
+    for &s in params.training.iter().chain(&tested) {
+        if spectra.contains_key(&s) {
+            continue;
+        }
+        let sp = match &cache {
+            Some(c) => c.get_or_compute(&shapes[s].mesh, &params.spectrum)?,
+            None => compute_spectrum(&shapes[s].mesh, &params.spectrum)?,
+        };
+        spectra.insert(s, Arc::new(sp));
+    }
+    timings.spectra_s = t0.elapsed().as_secs_f64();
+
+    // One forest on the training shapes (vertex → label from the truth tables).
+    emit(PairsEvent::Stage("train"));
+    let t0 = Instant::now();
+    let members: Vec<TrainingShape> = params
+        .training
+        .iter()
+        .map(|&s| {
+            let mut labels = vec![None; shapes[s].mesh.n_vertices()];
+            for (k, &v) in shapes[s].truth.iter().enumerate() {
+                labels[v] = Some(k as u32);
+            }
+            TrainingShape { name: shapes[s].name.clone(), spectrum: spectra[&s].clone(), labels }
+        })
+        .collect();
+    let forest = forest_params.fit(&TrainingSet::new(members, n_labels)?)?;
+    timings.train_s = t0.elapsed().as_secs_f64();
+
+    // Every tested shape onto the reference.
+    emit(PairsEvent::Stage("to-reference"));
+    let t0 = Instant::now();
+    let reference = params.training[0];
+    let table = &shapes[reference].truth;
+    let heat = params.regularizer.heat;
+    let ref_prepared = PreparedShape::new(shapes[reference].mesh.clone(), spectra[&reference].clone(), heat)?;
+    let mut prepared: HashMap<usize, (PreparedShape, crate::forest::Prediction, DenseMap)> = HashMap::new();
+    for (i, &s) in tested.iter().enumerate() {
+        let p = PreparedShape::new(shapes[s].mesh.clone(), spectra[&s].clone(), heat)?;
+        let prediction = forest.predict(&p.spectrum)?;
+        let dense = regularize(&p, &ref_prepared, &prediction, Some(table), &params.regularizer)?;
+        prepared.insert(s, (p, prediction, dense));
+        emit(PairsEvent::ToReference { done: i + 1, total: tested.len(), name: &shapes[s].name });
+    }
+    timings.to_reference_s = t0.elapsed().as_secs_f64();
+
+    // The maps of every pair, grouped by target so that each target's fields are made once.
+    emit(PairsEvent::Stage("pairs"));
+    let mut maps: Vec<(Vec<usize>, Vec<usize>, f64)> = Vec::with_capacity(params.pairs.len());
+    for (done, &(a, b)) in params.pairs.iter().enumerate() {
+        let (pa, pred_a, a_to_ref) = &prepared[&a];
+        let (pb, _, b_to_ref) = &prepared[&b];
+        let t0 = Instant::now();
+        let (pair, composed) = regularize_onto(
+            pa,
+            pb,
+            &ref_prepared.mesh,
+            pred_a,
+            &a_to_ref.map,
+            &b_to_ref.map,
+            Some(table),
+            &params.regularizer,
+            &params.pair,
+        )?;
+        let pair_s = t0.elapsed().as_secs_f64();
+        timings.pairs_s += pair_s;
+        maps.push((pair.map, composed, pair_s));
+        emit(PairsEvent::PairDone {
+            done: done + 1,
+            total: params.pairs.len(),
+            a: &shapes[a].name,
+            b: &shapes[b].name,
+        });
+    }
+
+    // Errors on each target, in blocks of ground-truth sources.
+    let t0 = Instant::now();
+    let mut errors: Vec<[Vec<f64>; 4]> = vec![Default::default(); params.pairs.len()];
+    let block = params.block.max(1);
+    for &b in &tested {
+        let on_b: Vec<usize> = (0..params.pairs.len()).filter(|&i| params.pairs[i].1 == b).collect();
+        if on_b.is_empty() {
+            continue;
+        }
+        let mesh = &shapes[b].mesh;
+        let norm = 1.0 / mesh.surface_area().max(f64::MIN_POSITIVE).sqrt();
+        let solver = HeatMethodSolver::new(mesh, params.eval_heat)?;
+        let truth_b = &shapes[b].truth;
+        let mut start = 0;
+        while start < n_labels {
+            let end = (start + block).min(n_labels);
+            let fields = solver.distances_from_many(&truth_b[start..end])?;
+            let mirror = match symmetry {
+                Some(sym) => {
+                    let m: Vec<usize> = (start..end).map(|k| truth_b[sym[k]]).collect();
+                    Some(solver.distances_from_many(&m)?)
+                }
+                None => None,
+            };
+            for &i in &on_b {
+                let a = params.pairs[i].0;
+                let truth_a = &shapes[a].truth;
+                let (pair_map, composed, _) = &maps[i];
+                for (mi, map) in [pair_map, composed].into_iter().enumerate() {
+                    for k in start..end {
+                        let m = map[truth_a[k]];
+                        errors[i][2 * mi].push(fields[(m, k - start)] * norm);
+                        if let Some(mf) = &mirror {
+                            let s = fields[(m, k - start)].min(mf[(m, k - start)]);
+                            errors[i][2 * mi + 1].push(s * norm);
+                        }
+                    }
+                }
+            }
+            start = end;
+        }
+    }
+    timings.eval_s = t0.elapsed().as_secs_f64();
+
+    let pairs = params
+        .pairs
+        .iter()
+        .zip(errors)
+        .zip(&maps)
+        .map(|((&(a, b), [ps, py, cs, cy]), (_, _, pair_s))| PairResult {
+            a,
+            b,
+            methods: vec![
+                PairErrors { method: PairMethod::Pair, strict: ps, symmetric: symmetry.map(|_| py) },
+                PairErrors { method: PairMethod::Composed, strict: cs, symmetric: symmetry.map(|_| cy) },
+            ],
+            pair_s: *pair_s,
+        })
+        .collect();
+    Ok(PairsReport {
+        shape_names: shapes.iter().map(|s| s.name.clone()).collect(),
+        training: params.training.clone(),
+        has_symmetry: symmetry.is_some(),
+        points_per_pair: n_labels,
+        timings,
+        pairs,
+    })
+}
