@@ -138,8 +138,7 @@ impl Limits {
 /// ```
 pub fn excerpt(bytes: &[u8], max_chars: usize) -> String {
     let mut out = String::from("\"");
-    let mut shown = 0;
-    for &b in bytes {
+    for (shown, &b) in bytes.iter().enumerate() {
         if shown >= max_chars {
             out.push('…');
             break;
@@ -153,7 +152,6 @@ pub fn excerpt(bytes: &[u8], max_chars: usize) -> String {
             0x20..=0x7e => out.push(b as char),
             _ => out.push_str(&format!("\\x{b:02x}")),
         }
-        shown += 1;
     }
     out.push('"');
     out
