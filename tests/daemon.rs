@@ -317,14 +317,14 @@ fn a_killed_daemon_restarts_without_losing_or_repeating_work() {
 /// from them, picks a reference, and its maps are right, before and after a restart.
 #[test]
 fn vts_labelled_shapes_with_their_own_vertex_order_train_a_model() {
-    let shapes = common::shuffled_family(8);
+    let shapes = common::labels::shuffled_family(8);
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     let mut d = Daemon::start(&data, false);
     let labeled = data.join("labeled");
     wait_until(&mut d, "the data folder", || labeled.is_dir());
     for (i, s) in shapes.iter().enumerate().take(5) {
-        std::fs::write(labeled.join(format!("shape{i}.vts")), common::vts(&s.truth)).unwrap();
+        std::fs::write(labeled.join(format!("shape{i}.vts")), common::labels::vts(&s.truth)).unwrap();
         drop_mesh(&labeled, &format!("shape{i}.off"), &s.mesh);
     }
     wait_until(&mut d, "a model", || !manifests(&data).is_empty());
@@ -335,7 +335,7 @@ fn vts_labelled_shapes_with_their_own_vertex_order_train_a_model() {
     drop_mesh(&data.join("incoming"), "scan5.off", &shapes[5].mesh);
     wait_until(&mut d, "a result", || result_dirs(&data).contains(&"scan5".to_string()));
     let map = read_map(&data.join("matched/scan5"), "scan5");
-    let acc = common::accuracy(&map, &shapes[5], &shapes[reference]);
+    let acc = common::labels::accuracy(&map, &shapes[5], &shapes[reference]);
     assert!(acc >= 0.8, "scan5 → shape{reference}: {:.1} % within 0.05", 100.0 * acc);
     d.stop();
     // The restarted daemon reads the reference's label table from the model file.
@@ -343,7 +343,7 @@ fn vts_labelled_shapes_with_their_own_vertex_order_train_a_model() {
     drop_mesh(&data.join("incoming"), "scan6.off", &shapes[6].mesh);
     wait_until(&mut d, "a result after restart", || result_dirs(&data).contains(&"scan6".to_string()));
     let map = read_map(&data.join("matched/scan6"), "scan6");
-    let acc = common::accuracy(&map, &shapes[6], &shapes[reference]);
+    let acc = common::labels::accuracy(&map, &shapes[6], &shapes[reference]);
     assert!(acc >= 0.8, "after restart, scan6 → shape{reference}: {:.1} % within 0.05", 100.0 * acc);
     d.stop();
 }

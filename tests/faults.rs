@@ -298,8 +298,9 @@ fn a_full_disk_and_a_read_only_output_folder_keep_scans_queued_until_they_can_be
     let tmp = tempfile::tempdir().unwrap();
     let mount = tmp.path().join("fs");
     let real_fs = mount_tmpfs(&mount, "256m");
-    if !real_fs && std::env::var_os("CI").is_some() && unsafe_libc_geteuid() == 0 {
-        eprintln!("note: cannot mount a tmpfs here; using the SHAPEFOREST_FAULT_FILE hook");
+    let _unmount = Unmount(mount.clone(), real_fs);
+    if !real_fs {
+        eprintln!("note: cannot mount a tmpfs here; a full disk is injected through SHAPEFOREST_FAULT_FILE");
     }
     let root = if real_fs { mount.clone() } else { tmp.path().to_path_buf() };
     let data = trained_copy(&root);
@@ -349,7 +350,6 @@ fn a_full_disk_and_a_read_only_output_folder_keep_scans_queued_until_they_can_be
     wait_until(&mut d, "matched once writable", || result_dirs(&data).contains(&"ro-a".to_string()));
     assert!(reports(&data).is_empty());
     d.stop();
-    drop(d_guard(&mount, real_fs));
 }
 
 struct Unmount(PathBuf, bool);
@@ -360,12 +360,9 @@ impl Drop for Unmount {
         }
     }
 }
-fn d_guard(mount: &Path, real: bool) -> Unmount {
-    Unmount(mount.to_path_buf(), real)
-}
 
-fn unsafe_libc_geteuid() -> u32 {
-    // The test runs as root in CI; `id -u` keeps the test free of unsafe code.
+/// The effective user id (`id -u`; CI runs as root, where permissions do not stop writes).
+fn euid() -> u32 {
     Command::new("id")
         .arg("-u")
         .output()
@@ -384,7 +381,7 @@ enum ReadOnly {
 /// Makes `dir` read-only: `chmod` for a normal user, a read-only bind mount for root (who
 /// ignores permissions), else the test hook.
 fn make_read_only(dir: &Path, fault: &Path) -> ReadOnly {
-    if unsafe_libc_geteuid() != 0 {
+    if euid() != 0 {
         use std::os::unix::fs::PermissionsExt;
         fs::set_permissions(dir, fs::Permissions::from_mode(0o555)).unwrap();
         return ReadOnly::Chmod;

@@ -7,7 +7,7 @@ mod common;
 
 use std::{path::Path, process::Command};
 
-use common::{shuffled_family, vts, write_shape, Shuffled};
+use common::labels::{shuffled_family, vts, write_shape, Shuffled};
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_shapeforest"))
@@ -23,7 +23,7 @@ fn read_map(path: &Path) -> Vec<usize> {
 }
 
 fn accuracy(map: &[usize], from: &Shuffled, to: &Shuffled) -> f64 {
-    common::accuracy(map, from, to)
+    common::labels::accuracy(map, from, to)
 }
 
 fn run_ok(cmd: &mut Command) -> String {

@@ -183,7 +183,7 @@ fn format_table(report: &PairsReport) -> String {
         "\naccuracy over {} pairs, {n} points (geodesic error on the target / √area)",
         report.pairs.len()
     );
-    let _ = write!(s, "{:<10} | {:>9} {:>7} {:>7}", "method", "mean×100", "≤0.05", "≤0.1");
+    let _ = write!(s, "{:<12} | {:>9} {:>7} {:>7}", "method", "mean×100", "≤0.05", "≤0.1");
     if report.has_symmetry {
         let _ = write!(s, " | {:>13} {:>10} {:>9}", "sym mean×100", "sym ≤0.05", "sym ≤0.1");
     }

@@ -37,8 +37,8 @@ pub struct MatchArgs {
     /// Model file written by `shapeforest train` (`RandomForest::save`).
     #[arg(long)]
     pub model: PathBuf,
-    /// Reference mesh: the model's reference (see `shapeforest info --model`), any shape of a
-    /// shared-indexing class, or another mesh together with `--reference-labels`.
+    /// Reference mesh: the model's reference (`train` names it; a wrong one is refused with its
+    /// name), any shape of a shared-indexing class, or another mesh with `--reference-labels`.
     #[arg(long)]
     pub reference: PathBuf,
     /// Label map of the reference, when it is not the model's own reference: `.vts` (line k =

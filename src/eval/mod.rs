@@ -47,6 +47,41 @@ pub enum EvalError {
 /// Largest threshold of the cumulative curves (as in the paper's plots).
 pub const CURVE_MAX: f64 = 0.25;
 
+/// Strict errors and, with a symmetry map, flips-allowed errors.
+pub(crate) type PooledErrors = (Vec<f64>, Option<Vec<f64>>);
+
+/// Errors of one method pooled over several results: `(strict, symmetric)`, the symmetric list
+/// `None` unless `has_symmetry`.
+pub(crate) fn pool_errors<'a>(
+    has_symmetry: bool,
+    errors: impl Iterator<Item = (&'a [f64], Option<&'a [f64]>)>,
+) -> PooledErrors {
+    let mut strict = Vec::new();
+    let mut sym: Option<Vec<f64>> = has_symmetry.then(Vec::new);
+    for (s, y) in errors {
+        strict.extend_from_slice(s);
+        if let (Some(out), Some(y)) = (sym.as_mut(), y) {
+            out.extend_from_slice(y);
+        }
+    }
+    (strict, sym)
+}
+
+/// Cumulative curves of pooled errors `(method name, (strict, symmetric))`: one per method
+/// (strict), then one per method with a symmetric list, named `NAME (sym)`.
+pub(crate) fn pooled_curves(pooled: Vec<(&str, PooledErrors)>, steps: usize) -> Vec<CurveSeries> {
+    let mut out = Vec::new();
+    let mut sym = Vec::new();
+    for (name, (s, y)) in pooled {
+        out.push(CurveSeries { name: name.to_string(), curve: cumulative_curve(&s, steps) });
+        if let Some(y) = y {
+            sym.push(CurveSeries { name: format!("{name} (sym)"), curve: cumulative_curve(&y, steps) });
+        }
+    }
+    out.extend(sym);
+    out
+}
+
 /// Normalised geodesic errors of a map at a set of evaluated test vertices.
 ///
 /// - `map`: test vertex → predicted reference vertex, for every test vertex;

@@ -9,13 +9,14 @@
 //! the cumulative curve complete it. With a symmetry map of the labels the flips-allowed
 //! figures are given beside them.
 //!
-//! One forest is trained on the given training shapes; its first shape is the reference. Two
+//! One forest is trained on the given training shapes; its first shape is the reference. Three
 //! maps `A → B` are measured on the same points:
 //!
 //! | [`PairMethod`] | map |
 //! |---|---|
 //! | `Pair` | [`crate::regularizer::regularize_pair`]: `A`'s posterior read through `B`'s map onto the reference and regularised against `B` |
 //! | `Composed` | `A → reference` and `B → reference`, each regularised, composed by inverting the second ([`crate::regularizer::invert_map`]) |
+//! | `PairZoomOut` | `Pair` refined by ZoomOut started from its point map ([`crate::fmap::zoomout_from_map`]) |
 //!
 //! Each shape's map onto the reference is computed once, whatever the number of pairs it is in.
 //! Distances on `B` come from the heat method (`t = h²`), in blocks of sources, so memory stays
@@ -26,7 +27,7 @@ use std::{collections::HashMap, path::PathBuf, sync::Arc, time::Instant};
 
 use serde::{Deserialize, Serialize};
 
-use super::{cumulative_curve, CurveSeries, ErrorSummary, EvalError};
+use super::{CurveSeries, ErrorSummary, EvalError};
 use crate::{
     eval::protocol::ProtocolShape,
     forest::{RandomForestParams, TrainingSet, TrainingShape},
@@ -43,11 +44,13 @@ pub enum PairMethod {
     Pair,
     /// Two maps onto the reference, composed.
     Composed,
+    /// `Pair` refined by ZoomOut from its point map (eigenpairs `zoomout_start` … K).
+    PairZoomOut,
 }
 
 impl PairMethod {
     /// All methods, in report order.
-    pub const ALL: [PairMethod; 2] = [PairMethod::Pair, PairMethod::Composed];
+    pub const ALL: [PairMethod; 3] = [PairMethod::Pair, PairMethod::Composed, PairMethod::PairZoomOut];
 
     /// A short name for tables and CSV files.
     ///
@@ -59,6 +62,7 @@ impl PairMethod {
         match self {
             PairMethod::Pair => "pair+reg",
             PairMethod::Composed => "composed",
+            PairMethod::PairZoomOut => "pair+zoomout",
         }
     }
 }
@@ -84,6 +88,8 @@ pub struct PairsParams {
     pub block: usize,
     /// Settings of the pair step.
     pub pair: PairParams,
+    /// ZoomOut of [`PairMethod::PairZoomOut`]: `(k_start, step)`, up to the spectrum's K.
+    pub zoomout: (usize, usize),
 }
 
 impl Default for PairsParams {
@@ -98,6 +104,7 @@ impl Default for PairsParams {
             cache_dir: None,
             block: 512,
             pair: PairParams::default(),
+            zoomout: (20, 5),
         }
     }
 }
@@ -168,17 +175,8 @@ pub struct PairsTimings {
 impl PairsReport {
     /// Errors of `method` pooled over all pairs: `(strict, symmetric)`.
     pub fn pooled(&self, method: PairMethod) -> (Vec<f64>, Option<Vec<f64>>) {
-        let mut strict = Vec::new();
-        let mut sym: Option<Vec<f64>> = self.has_symmetry.then(Vec::new);
-        for p in &self.pairs {
-            if let Some(e) = p.errors(method) {
-                strict.extend_from_slice(&e.strict);
-                if let (Some(out), Some(s)) = (sym.as_mut(), e.symmetric.as_ref()) {
-                    out.extend_from_slice(s);
-                }
-            }
-        }
-        (strict, sym)
+        let errors = self.pairs.iter().filter_map(|r| r.errors(method));
+        super::pool_errors(self.has_symmetry, errors.map(|e| (&e.strict[..], e.symmetric.as_deref())))
     }
 
     /// Summary of `method` over all pairs: `(strict, symmetric)`.
@@ -189,20 +187,7 @@ impl PairsReport {
 
     /// Cumulative curves, one per method (strict), then the flips-allowed ones.
     pub fn curves(&self, steps: usize) -> Vec<CurveSeries> {
-        let mut out = Vec::new();
-        let mut sym = Vec::new();
-        for m in PairMethod::ALL {
-            let (s, y) = self.pooled(m);
-            out.push(CurveSeries { name: m.name().to_string(), curve: cumulative_curve(&s, steps) });
-            if let Some(y) = y {
-                sym.push(CurveSeries {
-                    name: format!("{} (sym)", m.name()),
-                    curve: cumulative_curve(&y, steps),
-                });
-            }
-        }
-        out.extend(sym);
-        out
+        super::pooled_curves(PairMethod::ALL.iter().map(|&m| (m.name(), self.pooled(m))).collect(), steps)
     }
 }
 
@@ -232,6 +217,9 @@ pub enum PairsEvent<'a> {
         b: &'a str,
     },
 }
+
+/// The maps of one pair in [`PairMethod::ALL`] order, and the pair step's seconds.
+type PairMaps = (Vec<usize>, Vec<usize>, Vec<usize>, f64);
 
 fn invalid(msg: String) -> Error {
     EvalError::InvalidInput(msg).into()
@@ -365,7 +353,8 @@ pub fn run_pairs(
 
     // The maps of every pair, grouped by target so that each target's fields are made once.
     emit(PairsEvent::Stage("pairs"));
-    let mut maps: Vec<(Vec<usize>, Vec<usize>, f64)> = Vec::with_capacity(params.pairs.len());
+    // Per pair: the three maps (pair, composed, pair + ZoomOut) and the pair step's seconds.
+    let mut maps: Vec<PairMaps> = Vec::with_capacity(params.pairs.len());
     for (done, &(a, b)) in params.pairs.iter().enumerate() {
         let (pa, pred_a, a_to_ref) = &prepared[&a];
         let (pb, _, b_to_ref) = &prepared[&b];
@@ -383,7 +372,11 @@ pub fn run_pairs(
         )?;
         let pair_s = t0.elapsed().as_secs_f64();
         timings.pairs_s += pair_s;
-        maps.push((pair.map, composed, pair_s));
+        let (z0, zstep) = params.zoomout;
+        let k = pa.spectrum.k().min(pb.spectrum.k());
+        let (_, zoomed) =
+            crate::fmap::zoomout_from_map(&pa.spectrum, &pb.spectrum, &pair.map, z0.min(k), k, zstep)?;
+        maps.push((pair.map, composed, zoomed, pair_s));
         emit(PairsEvent::PairDone {
             done: done + 1,
             total: params.pairs.len(),
@@ -394,7 +387,7 @@ pub fn run_pairs(
 
     // Errors on each target, in blocks of ground-truth sources.
     let t0 = Instant::now();
-    let mut errors: Vec<[Vec<f64>; 4]> = vec![Default::default(); params.pairs.len()];
+    let mut errors: Vec<[Vec<f64>; 6]> = vec![Default::default(); params.pairs.len()];
     let block = params.block.max(1);
     for &b in &tested {
         let on_b: Vec<usize> = (0..params.pairs.len()).filter(|&i| params.pairs[i].1 == b).collect();
@@ -419,8 +412,8 @@ pub fn run_pairs(
             for &i in &on_b {
                 let a = params.pairs[i].0;
                 let truth_a = &shapes[a].truth;
-                let (pair_map, composed, _) = &maps[i];
-                for (mi, map) in [pair_map, composed].into_iter().enumerate() {
+                let (pair_map, composed, zoomed, _) = &maps[i];
+                for (mi, map) in [pair_map, composed, zoomed].into_iter().enumerate() {
                     for k in start..end {
                         let m = map[truth_a[k]];
                         errors[i][2 * mi].push(fields[(m, k - start)] * norm);
@@ -441,12 +434,13 @@ pub fn run_pairs(
         .iter()
         .zip(errors)
         .zip(&maps)
-        .map(|((&(a, b), [ps, py, cs, cy]), (_, _, pair_s))| PairResult {
+        .map(|((&(a, b), [ps, py, cs, cy, zs, zy]), (_, _, _, pair_s))| PairResult {
             a,
             b,
             methods: vec![
                 PairErrors { method: PairMethod::Pair, strict: ps, symmetric: symmetry.map(|_| py) },
                 PairErrors { method: PairMethod::Composed, strict: cs, symmetric: symmetry.map(|_| cy) },
+                PairErrors { method: PairMethod::PairZoomOut, strict: zs, symmetric: symmetry.map(|_| zy) },
             ],
             pair_s: *pair_s,
         })

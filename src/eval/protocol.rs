@@ -44,7 +44,7 @@ use rand::{seq::index::sample, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::{cumulative_curve, geodesic_errors, CurveSeries, ErrorSummary, EvalError};
+use super::{geodesic_errors, CurveSeries, ErrorSummary, EvalError};
 use crate::{
     descriptor::WksParams,
     forest::{Prediction, RandomForest, RandomForestParams, TrainingSet, TrainingShape, WksKnn},
@@ -251,17 +251,8 @@ pub struct ProtocolReport {
 impl ProtocolReport {
     /// Errors of `method` pooled over all tests: `(strict, symmetric)`.
     pub fn pooled(&self, method: Method) -> (Vec<f64>, Option<Vec<f64>>) {
-        let mut strict = Vec::new();
-        let mut sym: Option<Vec<f64>> = self.has_symmetry.then(Vec::new);
-        for t in &self.tests {
-            if let Some(e) = t.errors(method) {
-                strict.extend_from_slice(&e.strict);
-                if let (Some(out), Some(s)) = (sym.as_mut(), e.symmetric.as_ref()) {
-                    out.extend_from_slice(s);
-                }
-            }
-        }
-        (strict, sym)
+        let errors = self.tests.iter().filter_map(|r| r.errors(method));
+        super::pool_errors(self.has_symmetry, errors.map(|e| (&e.strict[..], e.symmetric.as_deref())))
     }
 
     /// Summary of `method` over all tests: `(strict, symmetric)`.
@@ -273,20 +264,7 @@ impl ProtocolReport {
     /// Cumulative curves, one per method (strict), then one per method (symmetric) when a
     /// symmetry map was given.
     pub fn curves(&self, steps: usize) -> Vec<CurveSeries> {
-        let mut out = Vec::new();
-        let mut sym = Vec::new();
-        for m in Method::ALL {
-            let (s, y) = self.pooled(m);
-            out.push(CurveSeries { name: m.name().to_string(), curve: cumulative_curve(&s, steps) });
-            if let Some(y) = y {
-                sym.push(CurveSeries {
-                    name: format!("{} (sym)", m.name()),
-                    curve: cumulative_curve(&y, steps),
-                });
-            }
-        }
-        out.extend(sym);
-        out
+        super::pooled_curves(Method::ALL.iter().map(|&m| (m.name(), self.pooled(m))).collect(), steps)
     }
 }
 

@@ -319,6 +319,29 @@ pub fn nearest_rows(queries: MatRef<'_, f64>, points: MatRef<'_, f64>) -> Vec<us
     out
 }
 
+/// ZoomOut (Melzi et al. 2019) started from a point map instead of a functional map: the
+/// functional map of `map` (test vertex → reference vertex) in the first `k_start` eigenpairs,
+/// then alternately a point map from the current functional map and a functional map one
+/// `step` larger from that point map, up to `k_final`. Returns the last functional map and
+/// point map. Refines a map that is right in the large but noisy in the small.
+pub fn zoomout_from_map(
+    test: &Spectrum,
+    reference: &Spectrum,
+    map: &[usize],
+    k_start: usize,
+    k_final: usize,
+    step: usize,
+) -> Result<(Mat<f64>, Vec<usize>), FmapError> {
+    if step == 0 || k_start == 0 || k_start > k_final {
+        return Err(FmapError::InvalidParameter {
+            name: "zoomout",
+            reason: format!("needs 1 ≤ k_start ≤ k_final and step ≥ 1, got {k_start}, {k_final}, {step}"),
+        });
+    }
+    let c = pullback_fmap(test, reference, k_start, k_start, map)?;
+    zoomout(test, reference, c.as_ref(), k_final, step)
+}
+
 /// Point-to-point map `T: M → R` (test vertex → reference vertex) of a functional map `C`
 /// (`k_test × k_ref`, pulling back from R to M).
 pub fn point_to_point(

@@ -52,7 +52,7 @@ pub fn dijkstra_distances(mesh: &Mesh, sources: &[usize]) -> Result<Vec<f64>, Ge
         dist[s] = 0.0;
         heap.push(Entry { dist: 0.0, vertex: s });
     }
-    dijkstra_relax(&graph, &mut dist, &mut heap);
+    dijkstra_relax(&graph, &mut dist, &mut heap, None);
     Ok(dist)
 }
 
@@ -85,20 +85,7 @@ pub fn dijkstra_nearest_source(
             heap.push(Entry { dist: 0.0, vertex: s });
         }
     }
-    while let Some(Entry { dist: d, vertex: v }) = heap.pop() {
-        if d > dist[v] {
-            continue;
-        }
-        for k in graph.offsets[v]..graph.offsets[v + 1] {
-            let w = graph.targets[k];
-            let nd = d + graph.lengths[k];
-            if nd < dist[w] {
-                dist[w] = nd;
-                nearest[w] = nearest[v];
-                heap.push(Entry { dist: nd, vertex: w });
-            }
-        }
-    }
+    dijkstra_relax(&graph, &mut dist, &mut heap, Some(&mut nearest));
     Ok((dist, nearest))
 }
 
@@ -106,7 +93,13 @@ pub fn dijkstra_nearest_source(
 /// With `dist` holding an existing field and the heap one new source at 0, this is the
 /// incremental min-update used by farthest point sampling: it only visits vertices that
 /// become closer to the new source.
-fn dijkstra_relax(graph: &EdgeGraph, dist: &mut [f64], heap: &mut BinaryHeap<Entry>) {
+/// With `nearest`, a vertex reached through `v` also takes `nearest[v]` (the nearest source).
+fn dijkstra_relax(
+    graph: &EdgeGraph,
+    dist: &mut [f64],
+    heap: &mut BinaryHeap<Entry>,
+    mut nearest: Option<&mut [usize]>,
+) {
     while let Some(Entry { dist: d, vertex: v }) = heap.pop() {
         if d > dist[v] {
             continue;
@@ -116,6 +109,9 @@ fn dijkstra_relax(graph: &EdgeGraph, dist: &mut [f64], heap: &mut BinaryHeap<Ent
             let nd = d + graph.lengths[k];
             if nd < dist[w] {
                 dist[w] = nd;
+                if let Some(n) = nearest.as_deref_mut() {
+                    n[w] = n[v];
+                }
                 heap.push(Entry { dist: nd, vertex: w });
             }
         }
@@ -127,7 +123,7 @@ pub(crate) fn dijkstra_min_update(graph: &EdgeGraph, dist: &mut [f64], source: u
     dist[source] = 0.0;
     let mut heap = BinaryHeap::new();
     heap.push(Entry { dist: 0.0, vertex: source });
-    dijkstra_relax(graph, dist, &mut heap);
+    dijkstra_relax(graph, dist, &mut heap, None);
 }
 
 /// First-order fast marching with its per-mesh precomputation cached (incident faces of every

@@ -16,7 +16,11 @@ use shapeforest::{
 };
 
 pub const VERTICES: usize = 1500;
-pub const TIMEOUT: Duration = Duration::from_secs(240);
+/// How long a test waits for something to happen (`SHAPEFOREST_TEST_timeout()_S`, default 240).
+pub fn timeout() -> Duration {
+    let s = std::env::var("SHAPEFOREST_TEST_timeout()_S").ok().and_then(|s| s.parse().ok()).unwrap_or(240);
+    Duration::from_secs(s)
+}
 
 /// The binary under test (`SHAPEFOREST_TEST_BIN` runs the suite against another build, e.g. to
 /// check that a test fails without a fix).
@@ -102,7 +106,7 @@ impl Daemon {
                 assert!(status.success(), "daemon exited with {status} after SIGTERM:\n{}", self.log());
                 return self.log();
             }
-            assert!(t0.elapsed() < TIMEOUT, "daemon did not stop after SIGTERM:\n{}", self.log());
+            assert!(t0.elapsed() < timeout(), "daemon did not stop after SIGTERM:\n{}", self.log());
             thread::sleep(Duration::from_millis(50));
         }
     }
@@ -145,7 +149,7 @@ pub fn wait_until(daemon: &mut Daemon, what: &str, mut cond: impl FnMut() -> boo
     let t0 = Instant::now();
     while !cond() {
         daemon.assert_running();
-        assert!(t0.elapsed() < TIMEOUT, "timed out waiting for {what}:\n{}", daemon.log());
+        assert!(t0.elapsed() < timeout(), "timed out waiting for {what}:\n{}", daemon.log());
         thread::sleep(Duration::from_millis(50));
     }
 }
@@ -155,7 +159,7 @@ pub fn wait_for_log(daemon: &mut Daemon, what: &str, cond: impl Fn(&str) -> bool
     let t0 = Instant::now();
     while !cond(&daemon.log()) {
         daemon.assert_running();
-        assert!(t0.elapsed() < TIMEOUT, "timed out waiting for {what}:\n{}", daemon.log());
+        assert!(t0.elapsed() < timeout(), "timed out waiting for {what}:\n{}", daemon.log());
         thread::sleep(Duration::from_millis(50));
     }
 }
@@ -238,7 +242,8 @@ pub fn copy_tree(from: &Path, to: &Path) {
 pub fn trained_template() -> &'static Path {
     static T: OnceLock<PathBuf> = OnceLock::new();
     T.get_or_init(|| {
-        let root = std::env::temp_dir().join(format!("shapeforest-template-{}", std::process::id()));
+        // Under the target folder, rebuilt by each run of the test binary (nothing accumulates).
+        let root = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("faults-template");
         let _ = std::fs::remove_dir_all(&root);
         std::fs::create_dir_all(&root).unwrap();
         let data = root.join("data");
