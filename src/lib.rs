@@ -34,6 +34,7 @@ pub mod fmap;
 pub mod forest;
 mod fsutil;
 pub mod geodesic;
+pub mod limits;
 pub mod matching;
 pub mod mesh;
 pub mod pipeline;

@@ -41,7 +41,7 @@ impl Daemon {
         let pipeline = data.with_extension("watch.toml");
         let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/pipelines/watch.toml"))
             .unwrap()
-            .replace("settle_ms = 500", "settle_ms = 200");
+            .replace("settle_ms = 2000", "settle_ms = 200");
         std::fs::write(&pipeline, text).unwrap();
         cmd.arg("--pipeline").arg(&pipeline);
         let child = cmd

@@ -179,12 +179,20 @@ fn bad_shapes_are_rejected_and_the_rest_train() {
 
 #[test]
 fn label_maps_parse_both_bases_and_unlabelled_markers() {
-    let zero = read_label_map("2\n\n-1\n0  extra\nnone\n".as_bytes(), false, 3).unwrap();
+    let zero = read_label_map("2\n\n-1\n0  \nnone\n".as_bytes(), false, 3).unwrap();
     assert_eq!(zero, vec![Some(2), None, None, Some(0), None]);
+    // Signs of a corrupt map are errors naming the line: two values on a line, a negative
+    // label other than -1, one label on every vertex.
+    let e = read_label_map("1\n100 200\n".as_bytes(), false, 300).unwrap_err().to_string();
+    assert!(e.contains("line 2") && e.contains("2 values"), "{e}");
+    let e = read_label_map("1\n-5\n".as_bytes(), false, 3).unwrap_err().to_string();
+    assert!(e.contains("line 2") && e.contains("negative"), "{e}");
+    let e = read_label_map("2\n2\n2\n".as_bytes(), false, 3).unwrap_err().to_string();
+    assert!(e.contains("all 3 labelled vertices carry label 2"), "{e}");
     let one = read_label_map("3\n1\n0\n".as_bytes(), true, 3).unwrap();
     assert_eq!(one, vec![Some(2), Some(0), None]);
     let e = read_label_map("1\nx\n".as_bytes(), false, 3).unwrap_err().to_string();
-    assert!(e.contains("line 2") && e.contains("`x`"), "{e}");
+    assert!(e.contains("line 2") && e.contains("\"x\""), "{e}");
     let e = read_label_map("3\n".as_bytes(), false, 3).unwrap_err().to_string();
     assert!(e.contains("line 1") && e.contains("outside the label set of 3"), "{e}");
 }

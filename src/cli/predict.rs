@@ -65,7 +65,25 @@ pub fn run(args: PredictArgs) -> Result<()> {
         t0.elapsed().as_secs_f64(),
         prediction.mean_support()
     );
-    let map = prediction.map_labels();
+    // A vertex no face uses has no surface around it: its spectrum values say nothing about
+    // where it is, so it gets no label rather than a confident-looking one.
+    let mut referenced = vec![false; mesh.n_vertices()];
+    for f in &mesh.faces {
+        for &v in f {
+            referenced[v] = true;
+        }
+    }
+    let unreferenced = referenced.iter().filter(|r| !**r).count();
+    if unreferenced > 0 {
+        eprintln!("{unreferenced} vertices are in no face: they get no label (`-`)");
+    }
+    let mut map = prediction.map_labels();
+    for (v, l) in map.iter_mut().enumerate() {
+        if !referenced[v] {
+            *l = None;
+        }
+    }
+    let top_k = |v: usize| if referenced[v] { prediction.top_k(v, args.top_k) } else { Vec::new() };
     let mut out: Box<dyn Write> = match &args.out {
         Some(p) => Box::new(BufWriter::new(
             std::fs::File::create(p).with_context(|| format!("cannot create {}", p.display()))?,
@@ -80,18 +98,15 @@ pub fn run(args: PredictArgs) -> Result<()> {
                     Some(l) => write!(out, "{v} {l}")?,
                     None => write!(out, "{v} -")?,
                 }
-                for (l, p) in prediction.top_k(v, args.top_k) {
+                for (l, p) in top_k(v) {
                     write!(out, " {l}:{p:.4}")?;
                 }
                 writeln!(out)?;
             }
         }
         Format::Msgpack => {
-            let packed = Packed {
-                n_labels: prediction.n_labels(),
-                top_k: (0..map.len()).map(|v| prediction.top_k(v, args.top_k)).collect(),
-                map,
-            };
+            let packed =
+                Packed { n_labels: prediction.n_labels(), top_k: (0..map.len()).map(top_k).collect(), map };
             let bytes = rmp_serde::to_vec_named(&packed).context("encoding the prediction")?;
             out.write_all(&bytes)?;
         }

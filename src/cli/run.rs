@@ -64,13 +64,27 @@ pub fn run(args: RunArgs) -> Result<()> {
     })
     .map_err(|e| anyhow!(e))?;
     println!("{}", report.table());
+    let (done, rejected) = (report.completed(), report.rejected());
     println!(
-        "pipeline `{}` finished in {:.1} s{}; model version {}",
+        "pipeline `{}` finished in {:.1} s{}; {done} done, {rejected} rejected; model version {}",
         spec.name,
         report.elapsed_s,
         if report.interrupted { " (shut down)" } else { "" },
         report.model_version
     );
+    if !report.problems.is_empty() {
+        return Err(anyhow!(
+            "pipeline `{}` failed ({done} done, {rejected} rejected):\n  {}",
+            spec.name,
+            report.problems.join("\n  ")
+        ));
+    }
+    if !report.interrupted && done == 0 && rejected > 0 {
+        return Err(anyhow!(
+            "pipeline `{}`: every input was rejected ({rejected} of {rejected}); the reports say why",
+            spec.name
+        ));
+    }
     Ok(())
 }
 

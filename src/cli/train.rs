@@ -35,9 +35,17 @@ pub struct TrainArgs {
     /// on line k, the vertex that carries label k.
     #[arg(long = "labels", value_name = "FILE")]
     pub labels: Vec<PathBuf>,
-    /// Indices in the label maps are 1-based (as in .vts files); a 0 then means none.
+    /// Labels in per-vertex maps are 1-based; a 0 then means none. (Per-label `.vts` maps are
+    /// always read 1-based, the format's convention, unless --zero-based-vts.)
     #[arg(long)]
     pub one_based: bool,
+    /// Read per-label (`.vts`) maps as 0-based vertex indices.
+    #[arg(long)]
+    pub zero_based_vts: bool,
+    /// Leave out a shape that cannot be used (unreadable, wrong vertex count, a label map of
+    /// the wrong length) with a warning, instead of failing.
+    #[arg(long)]
+    pub skip_bad: bool,
     /// How label maps are laid out (`auto`: per-label for `.vts` files, per-vertex otherwise).
     #[arg(long, value_enum, default_value_t = LabelLayout::Auto)]
     pub label_layout: LabelLayout,
@@ -136,18 +144,23 @@ fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
         for path in files {
             let mesh = match load_mesh(&path) {
                 Ok(m) => m,
-                Err(e) => {
+                Err(e) if args.skip_bad => {
                     eprintln!("skipping {}: {e:#}", path.display());
                     continue;
                 }
+                Err(e) => return Err(e.context("pass --skip-bad to leave unusable shapes out")),
             };
             let n = *n_labels.get_or_insert(mesh.n_vertices());
             if mesh.n_vertices() != n {
-                eprintln!(
-                    "skipping {}: {} vertices, but the reference has {n}; a class folder needs shared vertex indexing (use --shape/--labels for other shapes)",
+                let why = format!(
+                    "{}: {} vertices, but the reference has {n}; a class folder needs shared vertex indexing (use --shape/--labels for other shapes)",
                     path.display(),
                     mesh.n_vertices()
                 );
+                if !args.skip_bad {
+                    bail!("{why} (pass --skip-bad to leave it out)");
+                }
+                eprintln!("skipping {why}");
                 continue;
             }
             shapes.push(Labelled { name: shape_name(&path), mesh, labels: labels_identity(n), rows: None });
@@ -177,7 +190,7 @@ fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
             LabelLayout::PerLabel => true,
         };
         let (labels, rows) = if per_label {
-            let rows = read_per_label(label_path, args.one_based, mesh.n_vertices())?;
+            let rows = read_per_label(label_path, !args.zero_based_vts, mesh.n_vertices())?;
             (per_vertex_labels(&rows, mesh.n_vertices()), Some(rows))
         } else {
             let file =
@@ -266,6 +279,13 @@ pub fn run(args: TrainArgs) -> Result<()> {
     let set = TrainingSet::new(training, n_labels)?;
     for (name, why) in set.rejected() {
         eprintln!("rejected {name}: {why}");
+    }
+    if !set.rejected().is_empty() && !args.skip_bad {
+        bail!(
+            "{} of {} training shapes cannot be used (above); fix them, or pass --skip-bad to train without them",
+            set.rejected().len(),
+            set.rejected().len() + set.shapes().len()
+        );
     }
     let t0 = Instant::now();
     let bar = Arc::new(progress(args.trees as u64, "trees"));

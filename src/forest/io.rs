@@ -145,16 +145,16 @@ impl RandomForest {
         let path = path.as_ref();
         let bytes = self.to_bytes()?;
         crate::fsutil::write_atomic(path, &bytes)
-            .map_err(|source| ForestError::Io { path: path.to_path_buf(), source })
+            .map_err(|error| ForestError::Io { path: path.to_path_buf(), error })
     }
 
     /// Reads a model written by [`RandomForest::save`].
     pub fn load(path: impl AsRef<Path>) -> Result<RandomForest, ForestError> {
         let path = path.as_ref();
         let bytes =
-            std::fs::read(path).map_err(|e| ForestError::Io { path: path.to_path_buf(), source: e })?;
+            std::fs::read(path).map_err(|e| ForestError::Io { path: path.to_path_buf(), error: e })?;
         Self::from_bytes(&bytes)
-            .map_err(|e| ForestError::InFile { path: path.to_path_buf(), source: Box::new(e) })
+            .map_err(|e| ForestError::InFile { path: path.to_path_buf(), inner: Box::new(e) })
     }
 }
 

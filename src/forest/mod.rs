@@ -123,21 +123,22 @@ pub enum ForestError {
     /// Descriptor computation failed.
     #[error(transparent)]
     Descriptor(#[from] crate::descriptor::DescriptorError),
-    /// Reading or writing a file failed.
-    #[error("{}: {source}", path.display())]
+    /// Reading or writing a file failed. (The cause is in the message and deliberately not a
+    /// `source`, so that an error chain prints it once.)
+    #[error("{}: {error}", path.display())]
     Io {
         /// The file.
         path: std::path::PathBuf,
         /// The underlying error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
-    /// A model file could not be decoded.
-    #[error("{}: {source}", path.display())]
+    /// A model file could not be decoded. (The cause is in the message, not a `source`.)
+    #[error("{}: {inner}", path.display())]
     InFile {
         /// The file.
         path: std::path::PathBuf,
         /// What is wrong with it.
-        source: Box<ForestError>,
+        inner: Box<ForestError>,
     },
     /// The file does not start with the model magic bytes.
     #[error("not a shapeforest model file (bad magic bytes)")]

@@ -137,24 +137,66 @@ pub fn read_per_label_rows<R: std::io::BufRead>(
     n_vertices: usize,
 ) -> Result<Vec<Option<u32>>, ForestError> {
     let mut rows = Vec::new();
+    let mut first: Option<(u32, usize)> = None;
+    let mut one_vertex = true;
     for (k, line) in reader.lines().enumerate() {
         let bad = |reason: String| ForestError::LabelMap { line: k + 1, reason };
         let line = line.map_err(|e| bad(format!("cannot read: {e}")))?;
-        let tok = line.split_whitespace().next().unwrap_or("");
+        // Signs of a corrupt or misread map are errors naming the line: more than one value
+        // on a line, a negative index other than the none marker, every label on one vertex.
+        let mut toks = line.split_whitespace();
+        let tok = toks.next().unwrap_or("");
+        if toks.next().is_some() {
+            return Err(bad(format!(
+                "{} values on one line; a per-label map holds one vertex per line",
+                line.split_whitespace().count()
+            )));
+        }
         if tok.is_empty() {
             rows.push(None);
             continue;
         }
-        let v: i64 = tok.parse().map_err(|_| bad(format!("expected a vertex index, found `{tok}`")))?;
-        let v = if one_based { v - 1 } else { v };
-        if v < 0 {
+        if k >= u32::MAX as usize {
+            return Err(bad("too many labels".into()));
+        }
+        let v: i64 = tok.parse().map_err(|_| {
+            bad(format!("expected a vertex index, found {}", crate::limits::excerpt(tok.as_bytes(), 24)))
+        })?;
+        let none = if one_based { 0 } else { -1 };
+        if v == none {
             rows.push(None);
             continue;
         }
+        if v < none {
+            return Err(bad(format!(
+                "vertex {tok} is negative (only {none} marks a label without a vertex{})",
+                if one_based { "; indices are 1-based" } else { "" }
+            )));
+        }
+        let v = if one_based { v - 1 } else { v };
         if v as usize >= n_vertices {
-            return Err(bad(format!("vertex {tok} is out of range for a mesh of {n_vertices} vertices")));
+            return Err(bad(format!(
+                "vertex {tok} is out of range for a mesh of {n_vertices} vertices ({})",
+                if one_based {
+                    "1-based, the .vts convention"
+                } else {
+                    "read 0-based; .vts files are 1-based"
+                }
+            )));
+        }
+        match first {
+            None => first = Some((v as u32, k + 1)),
+            Some((f, _)) if f != v as u32 => one_vertex = false,
+            _ => {}
         }
         rows.push(Some(v as u32));
+    }
+    let placed = rows.iter().flatten().count();
+    if let (Some((v, line)), true, true) = (first, one_vertex, placed >= 2) {
+        return Err(ForestError::LabelMap {
+            line,
+            reason: format!("all {placed} labels are on vertex {v}: a sign of a corrupt map"),
+        });
     }
     Ok(rows)
 }

@@ -187,7 +187,8 @@ pub fn labels_identity(n: usize) -> Vec<Option<u32>> {
 /// Reads a label map with one label per vertex per line (the `.vts` convention of remeshed
 /// FAUST/SCAPE: line `i` gives the label of vertex `i`). `one_based` says the file counts
 /// labels from 1. A line that is blank, `none`, `nan`, `-1` (or `0` in a one-based file) marks
-/// an unlabelled vertex. Only the first whitespace-separated token of a line is read.
+/// an unlabelled vertex. A line holds one token; more, a negative label other than `-1`, or
+/// every labelled vertex carrying one label (signs of a corrupt or misread map) are errors.
 /// Labels `≥ n_labels` (after conversion to 0-based) are an error naming the line.
 ///
 /// ```
@@ -203,17 +204,33 @@ pub fn read_label_map<R: BufRead>(
     n_labels: usize,
 ) -> Result<Vec<Option<u32>>, ForestError> {
     let mut out = Vec::new();
+    let mut first: Option<(u32, usize)> = None;
+    let mut all_same = true;
     for (i, line) in reader.lines().enumerate() {
         let line =
             line.map_err(|e| ForestError::LabelMap { line: i + 1, reason: format!("cannot read: {e}") })?;
-        let tok = line.split_whitespace().next().unwrap_or("");
+        let bad = |reason: String| ForestError::LabelMap { line: i + 1, reason };
+        let mut toks = line.split_whitespace();
+        let tok = toks.next().unwrap_or("");
+        if toks.next().is_some() {
+            return Err(bad(format!(
+                "{} values on one line; a per-vertex label map holds one label per line",
+                line.split_whitespace().count()
+            )));
+        }
         let lower = tok.to_ascii_lowercase();
         if tok.is_empty() || lower == "none" || lower == "nan" || tok == "-1" {
             out.push(None);
             continue;
         }
-        let bad = |reason: String| ForestError::LabelMap { line: i + 1, reason };
-        let v: u64 = tok.parse().map_err(|_| bad(format!("`{tok}` is not a label index")))?;
+        let v: u64 = tok.parse().map_err(|_| {
+            let what = if tok.starts_with('-') {
+                "a negative label (only -1, for none, is allowed)"
+            } else {
+                "not a label index"
+            };
+            bad(format!("{} is {what}", crate::limits::excerpt(tok.as_bytes(), 24)))
+        })?;
         let v = if one_based {
             if v == 0 {
                 out.push(None);
@@ -223,13 +240,25 @@ pub fn read_label_map<R: BufRead>(
         } else {
             v
         };
-        if v as usize >= n_labels {
+        if v >= n_labels as u64 {
             return Err(bad(format!(
-                "label {tok} is outside the label set of {n_labels} ({})",
+                "label {v} is outside the label set of {n_labels} ({})",
                 if one_based { "1-based" } else { "0-based" }
             )));
         }
+        match first {
+            None => first = Some((v as u32, i + 1)),
+            Some((f, _)) if f != v as u32 => all_same = false,
+            _ => {}
+        }
         out.push(Some(v as u32));
+    }
+    let labelled = out.iter().flatten().count();
+    if let (Some((l, line)), true, true) = (first, all_same, labelled >= 2) {
+        return Err(ForestError::LabelMap {
+            line,
+            reason: format!("all {labelled} labelled vertices carry label {l}: a sign of a corrupt map"),
+        });
     }
     Ok(out)
 }
@@ -238,7 +267,9 @@ pub fn read_label_map<R: BufRead>(
 /// carries label `k`) and returns the per-vertex labels of a shape with `n_vertices` vertices.
 /// `one_based` says vertex indices count from 1. A line that is blank, or names vertex `-1` (or
 /// `0` in a one-based file), leaves its label without a vertex. A vertex named on several lines
-/// (remeshed shapes can map several labels to one vertex) keeps the last of them.
+/// (remeshed shapes can map several labels to one vertex) keeps the last of them. A line with
+/// more than one token, a negative index other than the none marker, or every label on one
+/// vertex is an error naming the line.
 ///
 /// ```
 /// use shapeforest::forest::read_per_label_map;

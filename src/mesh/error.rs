@@ -88,6 +88,31 @@ pub enum MeshError {
         /// The limit in bytes.
         limit: u64,
     },
+    /// The path is not a regular file (a directory, a FIFO, a device, or a symbolic link where
+    /// links are not followed); nothing is read from it.
+    #[error("not a regular file but {what}; nothing was read")]
+    NotAFile {
+        /// What it is, e.g. `a symbolic link`.
+        what: String,
+    },
+    /// The file is larger than the configured limit; nothing was read.
+    #[error("the file has {size} bytes, more than the limit of {limit} (limits.max_file_bytes)")]
+    FileTooLarge {
+        /// Size of the file.
+        size: u64,
+        /// The limit.
+        limit: u64,
+    },
+    /// The mesh has more vertices or faces than the configured limit.
+    #[error("{found} {what}, more than the limit of {limit} (limits.max_{what})")]
+    OverLimit {
+        /// `vertices` or `faces`.
+        what: &'static str,
+        /// Count found.
+        found: usize,
+        /// The limit.
+        limit: usize,
+    },
     /// The file name does not end in an extension this crate reads or writes.
     #[error(
         "unknown mesh file extension {extension:?}: expected .off, .obj, .ply, .vert or .tri, optionally followed by .gz"

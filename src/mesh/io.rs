@@ -14,8 +14,10 @@ use super::obj::{parse_obj, write_obj};
 use super::off::{parse_off, write_off};
 use super::ply::{parse_ply, write_ply, PlyEncoding};
 use super::report::{MeshFormat, MeshReport};
+use super::text::gunzip_limited;
 use super::tosca::{parse_tri, parse_vert, write_tosca};
 use super::{Mesh, MeshError};
+use crate::limits::Limits;
 
 impl MeshFormat {
     /// The format a file name announces, ignoring a trailing `.gz` and letter case.
@@ -53,18 +55,115 @@ pub fn read_mesh(path: impl AsRef<Path>) -> Result<Mesh, MeshError> {
     read_mesh_with_report(path).map(|(mesh, _)| mesh)
 }
 
-/// Reads a mesh file, choosing the reader by extension, and reports what it found.
+/// Reads a mesh file, choosing the reader by extension, and reports what it found, under the
+/// default [`Limits`] (symbolic links are followed: the path is the caller's own choice).
 ///
 /// For TOSCA, either file of the pair may be given; the other is looked up beside it
 /// (`NAME.vert` ↔ `NAME.tri`, with or without `.gz`).
 pub fn read_mesh_with_report(path: impl AsRef<Path>) -> Result<(Mesh, MeshReport), MeshError> {
+    read_mesh_limited(path, &Limits::default(), true)
+}
+
+/// [`read_mesh_with_report`] under explicit limits: the path must be a regular file (with
+/// `follow_symlinks = false`, a symbolic link is refused without being opened, as the daemon
+/// does for files dropped into its folders), no larger than `limits.max_file_bytes` on disk and
+/// after decompression (checked before reading), and the mesh may have at most
+/// `limits.max_vertices` vertices and `limits.max_faces` faces.
+///
+/// ```
+/// use shapeforest::{limits::Limits, mesh::{read_mesh_limited, MeshError}};
+/// let d = tempfile::tempdir().unwrap();
+/// let p = d.path().join("a.off");
+/// std::fs::write(&p, "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n").unwrap();
+/// let small = Limits { max_file_bytes: 10, ..Limits::default() };
+/// let e = read_mesh_limited(&p, &small, false).unwrap_err();
+/// assert!(matches!(e.root(), MeshError::FileTooLarge { .. }), "{e}");
+/// assert!(read_mesh_limited(&p, &Limits::default(), false).is_ok());
+/// ```
+pub fn read_mesh_limited(
+    path: impl AsRef<Path>,
+    limits: &Limits,
+    follow_symlinks: bool,
+) -> Result<(Mesh, MeshReport), MeshError> {
     let path = path.as_ref();
     let format = MeshFormat::from_path(path).map_err(|e| e.in_file(path))?;
-    if format == MeshFormat::Tosca {
-        return read_tosca_pair(path);
+    let (mesh, report) = if format == MeshFormat::Tosca {
+        read_tosca_pair(path, limits, follow_symlinks)?
+    } else {
+        let bytes = read_file_limited(path, limits.max_file_bytes, follow_symlinks)?;
+        let bytes = gunzip_limited(&bytes, limits.max_file_bytes).map_err(|e| e.in_file(path))?;
+        parse_mesh(&bytes, format).map_err(|e| e.in_file(path))?
+    };
+    check_counts(&mesh, limits).map_err(|e| e.in_file(path))?;
+    Ok((mesh, report))
+}
+
+fn check_counts(mesh: &Mesh, limits: &Limits) -> Result<(), MeshError> {
+    if mesh.n_vertices() > limits.max_vertices {
+        return Err(MeshError::OverLimit {
+            what: "vertices",
+            found: mesh.n_vertices(),
+            limit: limits.max_vertices,
+        });
     }
-    let bytes = std::fs::read(path).map_err(|e| MeshError::Io(e).in_file(path))?;
-    parse_mesh(&bytes, format).map_err(|e| e.in_file(path))
+    if mesh.n_faces() > limits.max_faces {
+        return Err(MeshError::OverLimit { what: "faces", found: mesh.n_faces(), limit: limits.max_faces });
+    }
+    Ok(())
+}
+
+/// What a non-regular file is, for messages.
+fn file_kind(ft: &std::fs::FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if ft.is_fifo() {
+            return "a FIFO (named pipe)";
+        }
+        if ft.is_socket() {
+            return "a socket";
+        }
+        if ft.is_block_device() || ft.is_char_device() {
+            return "a device";
+        }
+    }
+    if ft.is_symlink() {
+        "a symbolic link (links are not followed here)"
+    } else if ft.is_dir() {
+        "a directory"
+    } else {
+        "not a regular file"
+    }
+}
+
+/// Reads a whole regular file of at most `limit` bytes; the size is checked before reading and
+/// again while reading (the file may grow), and a FIFO or device is never opened (it could
+/// block forever). Without `follow_symlinks` the file is opened with `O_NOFOLLOW` after a
+/// `symlink_metadata` check, so a link is never followed. Errors name the file.
+pub fn read_file_limited(path: &Path, limit: u64, follow_symlinks: bool) -> Result<Vec<u8>, MeshError> {
+    let io = |e: std::io::Error| MeshError::Io(e).in_file(path);
+    let meta = if follow_symlinks { std::fs::metadata(path) } else { std::fs::symlink_metadata(path) }
+        .map_err(io)?;
+    if !meta.is_file() {
+        return Err(MeshError::NotAFile { what: file_kind(&meta.file_type()).into() }.in_file(path));
+    }
+    if meta.len() > limit {
+        return Err(MeshError::FileTooLarge { size: meta.len(), limit }.in_file(path));
+    }
+    let mut options = std::fs::OpenOptions::new();
+    options.read(true);
+    #[cfg(unix)]
+    if !follow_symlinks {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK);
+    }
+    let file = options.open(path).map_err(io)?;
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    file.take(limit + 1).read_to_end(&mut bytes).map_err(io)?;
+    if bytes.len() as u64 > limit {
+        return Err(MeshError::FileTooLarge { size: bytes.len() as u64, limit }.in_file(path));
+    }
+    Ok(bytes)
 }
 
 /// Parses mesh data held in memory (plain or gzip-compressed).
@@ -107,9 +206,13 @@ fn tosca_pair(path: &Path) -> Result<(PathBuf, PathBuf), MeshError> {
     Ok((find("vert")?, find("tri")?))
 }
 
-fn read_tosca_pair(path: &Path) -> Result<(Mesh, MeshReport), MeshError> {
+fn read_tosca_pair(path: &Path, limits: &Limits, follow: bool) -> Result<(Mesh, MeshReport), MeshError> {
     let (vert_path, tri_path) = tosca_pair(path).map_err(|e| e.in_file(path))?;
-    let read = |p: &Path| std::fs::read(p).map_err(|e| MeshError::Io(e).in_file(p));
+    let read = |p: &Path| -> Result<Vec<u8>, MeshError> {
+        let bytes = read_file_limited(p, limits.max_file_bytes, follow)?;
+        let plain = gunzip_limited(&bytes, limits.max_file_bytes).map_err(|e| e.in_file(p))?;
+        Ok(plain.into_owned())
+    };
     let vertices = parse_vert(&read(&vert_path)?).map_err(|e| e.in_file(&vert_path))?;
     let faces = parse_tri(&read(&tri_path)?, vertices.len()).map_err(|e| e.in_file(&tri_path))?;
     super::report::finish(vertices, faces, MeshFormat::Tosca, Vec::new()).map_err(|e| e.in_file(&vert_path))

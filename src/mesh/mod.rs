@@ -40,7 +40,10 @@ mod text;
 mod tosca;
 
 pub use error::{Location, MeshError};
-pub use io::{parse_mesh, read_mesh, read_mesh_from, read_mesh_with_report, write_colored_ply, write_mesh};
+pub use io::{
+    parse_mesh, read_file_limited, read_mesh, read_mesh_from, read_mesh_limited, read_mesh_with_report,
+    write_colored_ply, write_mesh,
+};
 pub use obj::{parse_obj, write_obj};
 pub use off::{parse_off, write_off};
 pub use ply::{parse_ply, write_ply, PlyEncoding};

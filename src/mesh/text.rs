@@ -15,14 +15,21 @@ pub const MAX_DECOMPRESSED_BYTES: u64 = 1 << 30;
 /// Returns `bytes` itself, or its decompressed content when it starts with the gzip magic
 /// number (`1f 8b`).
 pub(crate) fn gunzip_if_needed(bytes: &[u8]) -> Result<Cow<'_, [u8]>, MeshError> {
+    gunzip_limited(bytes, MAX_DECOMPRESSED_BYTES)
+}
+
+/// [`gunzip_if_needed`] with a smaller cap on the decompressed size (at most
+/// [`MAX_DECOMPRESSED_BYTES`]).
+pub(crate) fn gunzip_limited(bytes: &[u8], limit: u64) -> Result<Cow<'_, [u8]>, MeshError> {
     if bytes.len() < 2 || bytes[0] != 0x1f || bytes[1] != 0x8b {
         return Ok(Cow::Borrowed(bytes));
     }
+    let limit = limit.min(MAX_DECOMPRESSED_BYTES);
     let decoder = flate2::read::MultiGzDecoder::new(bytes);
-    let mut out = Vec::with_capacity(bytes.len().saturating_mul(4).min(1 << 26));
-    decoder.take(MAX_DECOMPRESSED_BYTES + 1).read_to_end(&mut out).map_err(MeshError::Decompress)?;
-    if out.len() as u64 > MAX_DECOMPRESSED_BYTES {
-        return Err(MeshError::TooLarge { limit: MAX_DECOMPRESSED_BYTES });
+    let mut out = Vec::with_capacity(bytes.len().saturating_mul(4).min(1 << 26).min(limit as usize));
+    decoder.take(limit + 1).read_to_end(&mut out).map_err(MeshError::Decompress)?;
+    if out.len() as u64 > limit {
+        return Err(MeshError::TooLarge { limit });
     }
     Ok(Cow::Owned(out))
 }
@@ -75,15 +82,10 @@ pub(crate) fn tokens(line: &[u8]) -> impl Iterator<Item = &[u8]> {
     line.split(|b| b.is_ascii_whitespace()).filter(|t| !t.is_empty())
 }
 
-/// A token for an error message: lossy UTF-8, shortened to at most 40 characters, quoted.
+/// A token for an error message: printable ASCII, everything else escaped, shortened to at
+/// most 40 characters, quoted ([`crate::limits::excerpt`]).
 pub(crate) fn show(token: &[u8]) -> String {
-    let s = String::from_utf8_lossy(token);
-    let short: String = s.chars().take(40).collect();
-    if short.len() < s.len() {
-        format!("\"{short}…\"")
-    } else {
-        format!("\"{short}\"")
-    }
+    crate::limits::excerpt(token, 40)
 }
 
 /// Parses a token as `f64` (accepting whatever `f64::from_str` accepts, including `nan`

@@ -78,6 +78,8 @@ pub struct StageMetrics {
     passed_on: AtomicU64,
     busy_ns: AtomicU64,
     max_ns: AtomicU64,
+    completed: AtomicU64,
+    rejected: AtomicU64,
 }
 
 impl StageMetrics {
@@ -115,6 +117,8 @@ impl StageMetrics {
             busy_s: busy,
             mean_s: if jobs > 0 { busy / jobs as f64 } else { 0.0 },
             max_s: self.max_ns.load(Ordering::Relaxed) as f64 * 1e-9,
+            completed: self.completed.load(Ordering::Relaxed),
+            rejected: self.rejected.load(Ordering::Relaxed),
         }
     }
 }
@@ -136,6 +140,10 @@ pub struct StageSummary {
     pub mean_s: f64,
     /// Longest job, seconds.
     pub max_s: f64,
+    /// Sinks: jobs that arrived with a result and were consumed without error.
+    pub completed: u64,
+    /// Sinks: jobs that arrived failed (bad input, an internal error; not interrupted ones).
+    pub rejected: u64,
 }
 
 /// Everything the actors of one pipeline share: job numbers, the shutdown flag and metrics.
@@ -145,6 +153,7 @@ pub struct PipelineContext {
     pub shutdown: Shutdown,
     next_job: Arc<AtomicU64>,
     metrics: Arc<Mutex<Vec<Arc<StageMetrics>>>>,
+    problems: Arc<Mutex<Vec<String>>>,
 }
 
 impl Default for PipelineContext {
@@ -162,7 +171,12 @@ impl PipelineContext {
     /// A fresh context whose shutdown flag is `shutdown` (held by the caller, to stop the
     /// pipeline from outside).
     pub fn with_shutdown(shutdown: Shutdown) -> Self {
-        Self { shutdown, next_job: Arc::new(AtomicU64::new(1)), metrics: Arc::new(Mutex::new(Vec::new())) }
+        Self {
+            shutdown,
+            next_job: Arc::new(AtomicU64::new(1)),
+            metrics: Arc::new(Mutex::new(Vec::new())),
+            problems: Arc::default(),
+        }
     }
 
     /// A new job number.
@@ -177,6 +191,19 @@ impl PipelineContext {
             all.push(m.clone());
         }
         m
+    }
+
+    /// Records a failure of an actor itself (a source that stopped with an error, a sink whose
+    /// start or finish failed), as opposed to a failed job.
+    pub fn record_problem(&self, problem: impl Into<String>) {
+        if let Ok(mut p) = self.problems.lock() {
+            p.push(problem.into());
+        }
+    }
+
+    /// The problems recorded so far.
+    pub fn problems(&self) -> Vec<String> {
+        self.problems.lock().map(|p| p.clone()).unwrap_or_default()
     }
 
     /// Snapshots of every actor's metrics, in creation order.
@@ -313,10 +340,14 @@ pub(crate) async fn run_source<S: Source>(
     ctx: PipelineContext,
     metrics: Arc<StageMetrics>,
 ) {
+    let problems = ctx.clone();
     let emitter = Emitter { tx, ctx, metrics };
     match on_blocking_pool(source, move |s| s.run(&emitter)).await {
         Some((_, Ok(Ok(())))) => tracing::debug!(source = %name, "source finished"),
-        Some((_, Ok(Err(e)) | Err(e))) => tracing::error!(source = %name, "source stopped: {e}"),
+        Some((_, Ok(Err(e)) | Err(e))) => {
+            tracing::error!(source = %name, "source stopped: {e}");
+            problems.record_problem(format!("source `{name}` failed: {e}"));
+        }
         None => tracing::error!(source = %name, "source task was cancelled"),
     }
 }
@@ -387,10 +418,14 @@ pub(crate) async fn run_sink<S: Sink>(
     name: String,
     rx: flume::Receiver<Envelope<S::In>>,
     metrics: Arc<StageMetrics>,
+    ctx: PipelineContext,
 ) {
     let log = |what: &str, r: Result<Result<(), String>, String>| {
         if let Err(e) = r.and_then(|r| r) {
             tracing::error!(sink = %name, "{what}{e}");
+            if !what.is_empty() {
+                ctx.record_problem(format!("sink `{name}`: {what}{e}"));
+            }
         }
     };
     let Some((s, r)) = on_blocking_pool(sink, |s| s.start()).await else { return };
@@ -417,6 +452,14 @@ pub(crate) async fn run_sink<S: Sink>(
             },
         };
         let Ok(Envelope { job, body }) = received else { break };
+        match &body {
+            Ok(_) => {}
+            Err(f) if f.kind == FailureKind::Interrupted => {}
+            Err(_) => {
+                metrics.rejected.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        let arrived_ok = body.is_ok();
         let Some(s) = sink.take() else { break };
         let t0 = Instant::now();
         let waiting = rx.clone();
@@ -437,6 +480,9 @@ pub(crate) async fn run_sink<S: Sink>(
         sink = Some(s);
         let r = r.and_then(|r| r);
         metrics.record(t0.elapsed(), r.is_ok());
+        if arrived_ok && r.is_ok() {
+            metrics.completed.fetch_add(1, Ordering::Relaxed);
+        }
         log("", r.map(Ok));
     }
     if let Some(s) = sink {

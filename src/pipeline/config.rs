@@ -232,6 +232,9 @@ pub struct Settings {
     /// Capacity of every channel. Default 2.
     #[serde(default = "default_capacity")]
     pub channel_capacity: usize,
+    /// Limits on input sizes (`[settings.limits]`; see [`crate::limits::Limits`]).
+    #[serde(default)]
+    pub limits: crate::limits::Limits,
 }
 
 fn default_data_dir() -> PathBuf {
@@ -243,7 +246,11 @@ fn default_capacity() -> usize {
 
 impl Default for Settings {
     fn default() -> Self {
-        Self { data_dir: default_data_dir(), channel_capacity: default_capacity() }
+        Self {
+            data_dir: default_data_dir(),
+            channel_capacity: default_capacity(),
+            limits: crate::limits::Limits::default(),
+        }
     }
 }
 
@@ -336,6 +343,9 @@ impl PipelineSpec {
         };
         if settings.channel_capacity == 0 {
             problems.push("[settings]: channel_capacity must be at least 1".into());
+        }
+        if let Err(e) = settings.limits.check() {
+            problems.push(format!("[settings]: {e}"));
         }
         let mut stages = Vec::new();
         let mut nodes = Vec::new();
@@ -497,12 +507,36 @@ fn validate_graph(stages: &[Node], problems: &mut Vec<String>) {
             break;
         }
     }
+    // A stage no source reaches is either on a cycle (said once per cycle, naming it) or
+    // downstream of a stage with a problem already reported (an unknown input): no more lines.
+    let mut on_reported_cycle: HashSet<&str> = HashSet::new();
     for s in stages {
-        if s.input.is_some()
-            && !reached.contains(s.name.as_str())
-            && by_name.contains_key(s.input.as_deref().unwrap_or(""))
+        if s.input.is_none()
+            || reached.contains(s.name.as_str())
+            || on_reported_cycle.contains(s.name.as_str())
         {
-            problems.push(format!("stage `{}`: not connected to any source (a cycle?)", s.name));
+            continue;
+        }
+        let mut path: Vec<&str> = vec![s.name.as_str()];
+        let mut at = s;
+        while let Some(next) = at.input.as_deref().and_then(|i| by_name.get(i)) {
+            if let Some(start) = path.iter().position(|n| *n == next.name) {
+                let cycle = &path[start..];
+                if cycle.iter().all(|n| !on_reported_cycle.contains(n)) {
+                    // Listed in data-flow order: each stage feeds the next.
+                    let mut flow: Vec<&str> = cycle.iter().rev().copied().collect();
+                    flow.push(flow[0]);
+                    problems.push(format!(
+                        "stages {} form a cycle: each takes its input from the one before, so no \
+                         source feeds them",
+                        flow.iter().map(|n| format!("`{n}`")).collect::<Vec<_>>().join(" → ")
+                    ));
+                    on_reported_cycle.extend(cycle.iter().copied());
+                }
+                break;
+            }
+            path.push(next.name.as_str());
+            at = next;
         }
     }
 }
@@ -556,59 +590,78 @@ pub fn build(
             };
             let name = s.name.as_str();
             let wrong = || format!("stage `{name}`: input of the wrong type");
-            let out =
-                match (&s.kind, input) {
-                    (StageKind::Folder(c), None) => {
-                        let mut c = c.clone();
-                        c.folder = resolve(data, &c.folder);
-                        Some(AnyPort::File(p.source(name, FolderSource::new(c))))
+            let out = match (&s.kind, input) {
+                (StageKind::Folder(c), None) => {
+                    let mut c = c.clone();
+                    c.folder = resolve(data, &c.folder);
+                    Some(AnyPort::File(p.source(name, FolderSource::new(c))))
+                }
+                (StageKind::WatchFolder(c), None) => {
+                    Some(AnyPort::File(p.source(name, WatchSource::new(data.clone(), c.clone()))))
+                }
+                (StageKind::Synthetic(c), None) => {
+                    Some(AnyPort::Shape(p.source(name, SyntheticSource::new(c.clone()))))
+                }
+                (StageKind::Ingest(c), Some(AnyPort::File(i))) => {
+                    // Files dropped into a watched folder: links are not followed.
+                    let watched = s.input.as_deref().is_some_and(|i| {
+                        spec.stages.iter().any(|u| u.name == i && matches!(u.kind, StageKind::WatchFolder(_)))
+                    });
+                    let st = IngestStage::new(c.clone())
+                        .with_limits(spec.settings.limits)
+                        .follow_symlinks(!watched);
+                    Some(AnyPort::Shape(p.stage(name, i, st)))
+                }
+                (StageKind::Spectral(c), Some(AnyPort::Shape(i))) => {
+                    let st = SpectralStage::new(c, Some(data.cache()))
+                        .map_err(|e| format!("stage `{name}`: {e}"))?;
+                    Some(AnyPort::Spectrum(p.stage(name, i, st)))
+                }
+                (StageKind::Descriptor, Some(AnyPort::Spectrum(i))) => Some(AnyPort::Descriptor(p.stage(
+                    name,
+                    i,
+                    DescriptorStage::new(live.clone(), shutdown.clone()),
+                ))),
+                (StageKind::Forest, Some(AnyPort::Descriptor(i))) => {
+                    Some(AnyPort::Prediction(p.stage(name, i, ForestStage)))
+                }
+                (StageKind::Matcher(c), Some(AnyPort::Prediction(i))) => {
+                    Some(AnyPort::Matches(p.stage(name, i, MatcherStage::new(c))))
+                }
+                (StageKind::Fmap(c), Some(AnyPort::Matches(i))) => {
+                    Some(AnyPort::Map(p.stage(name, i, FmapStage::new(c))))
+                }
+                (StageKind::MatchSink(c), Some(AnyPort::Map(i))) => {
+                    let mut c = c.clone();
+                    c.folder = resolve(data, &c.folder);
+                    p.sink(name, i, MatchSink::new(data.clone(), c));
+                    None
+                }
+                (StageKind::EvalSink(c), Some(AnyPort::Map(i))) => {
+                    let mut c = c.clone();
+                    c.folder = resolve(data, &c.folder);
+                    p.sink(name, i, EvalSink::new(data.clone(), c));
+                    None
+                }
+                (StageKind::Trainer(c), Some(AnyPort::Spectrum(i))) => {
+                    let upstream_k = s.input.as_deref().and_then(|i| {
+                        spec.stages.iter().find(|u| u.name == i).and_then(|u| match &u.kind {
+                            StageKind::Spectral(sc) => Some(sc.k),
+                            _ => None,
+                        })
+                    });
+                    let mut t = TrainerSink::new(data.clone(), c.clone(), heat, live.clone())
+                        .map_err(|e| format!("stage `{name}`: {e}"))?
+                        .with_shutdown(shutdown.clone())
+                        .with_limits(spec.settings.limits);
+                    if let Some(k) = upstream_k {
+                        t = t.with_spectrum_k(k);
                     }
-                    (StageKind::WatchFolder(c), None) => {
-                        Some(AnyPort::File(p.source(name, WatchSource::new(data.clone(), c.clone()))))
-                    }
-                    (StageKind::Synthetic(c), None) => {
-                        Some(AnyPort::Shape(p.source(name, SyntheticSource::new(c.clone()))))
-                    }
-                    (StageKind::Ingest(c), Some(AnyPort::File(i))) => {
-                        Some(AnyPort::Shape(p.stage(name, i, IngestStage::new(c.clone()))))
-                    }
-                    (StageKind::Spectral(c), Some(AnyPort::Shape(i))) => {
-                        let st = SpectralStage::new(c, Some(data.cache()))
-                            .map_err(|e| format!("stage `{name}`: {e}"))?;
-                        Some(AnyPort::Spectrum(p.stage(name, i, st)))
-                    }
-                    (StageKind::Descriptor, Some(AnyPort::Spectrum(i))) => Some(AnyPort::Descriptor(
-                        p.stage(name, i, DescriptorStage::new(live.clone(), shutdown.clone())),
-                    )),
-                    (StageKind::Forest, Some(AnyPort::Descriptor(i))) => {
-                        Some(AnyPort::Prediction(p.stage(name, i, ForestStage)))
-                    }
-                    (StageKind::Matcher(c), Some(AnyPort::Prediction(i))) => {
-                        Some(AnyPort::Matches(p.stage(name, i, MatcherStage::new(c))))
-                    }
-                    (StageKind::Fmap(c), Some(AnyPort::Matches(i))) => {
-                        Some(AnyPort::Map(p.stage(name, i, FmapStage::new(c))))
-                    }
-                    (StageKind::MatchSink(c), Some(AnyPort::Map(i))) => {
-                        let mut c = c.clone();
-                        c.folder = resolve(data, &c.folder);
-                        p.sink(name, i, MatchSink::new(data.clone(), c));
-                        None
-                    }
-                    (StageKind::EvalSink(c), Some(AnyPort::Map(i))) => {
-                        let mut c = c.clone();
-                        c.folder = resolve(data, &c.folder);
-                        p.sink(name, i, EvalSink::new(data.clone(), c));
-                        None
-                    }
-                    (StageKind::Trainer(c), Some(AnyPort::Spectrum(i))) => {
-                        let t = TrainerSink::new(data.clone(), c.clone(), heat, live.clone())
-                            .map_err(|e| format!("stage `{name}`: {e}"))?;
-                        p.sink(name, i, t);
-                        None
-                    }
-                    _ => return Err(wrong()),
-                };
+                    p.sink(name, i, t);
+                    None
+                }
+                _ => return Err(wrong()),
+            };
             if let Some(o) = out {
                 outputs.insert(s.name.clone(), o);
             }

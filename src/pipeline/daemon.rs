@@ -8,9 +8,11 @@ use super::{
     actor::{PipelineContext, Shutdown},
     config::{build, PipelineSpec, StageKind},
     graph::{PipelineReport, RunOptions},
+    lock::DataLock,
+    message::{Failure, FailureKind, Job},
     model::LiveModel,
-    stages::load_live_model,
-    store::{atomic_write, label_map_text, stored_shapes, DataDir},
+    stages::{load_live_model_for, ServeNeeds},
+    store::{atomic_write, label_map_text, stored_shapes, DataDir, InputKind},
 };
 use crate::{
     forest::labels_identity,
@@ -31,6 +33,8 @@ pub struct RunSetup {
     pub nothing_to_learn: bool,
     /// For a daemon with nothing to learn from: what to drop where.
     pub waiting_hint: Option<String>,
+    /// The exclusive lock on the data folder, held while this lives.
+    pub lock: DataLock,
 }
 
 /// Writes `n_train` labelled shapes of the synthetic creature family into `labeled/` and
@@ -76,8 +80,14 @@ pub fn bootstrap_synthetic(
 /// produce one.
 pub fn prepare(spec: &PipelineSpec, data: DataDir) -> Result<RunSetup, String> {
     let mut notes = Vec::new();
+    // Before anything moves: a second process on this folder would recover (move back) the
+    // first one's in-flight inputs.
+    let lock = DataLock::acquire(data.root())?;
+    let mut skip_versions = Vec::new();
     if spec.is_daemon() {
         data.create().map_err(|e| format!("cannot create the data folder: {e}"))?;
+        let crash = account_for_a_crash(&data, &mut notes)?;
+        skip_versions = crash.quarantined_models.clone();
         let rec = data.recover().map_err(|e| format!("recovery failed: {e}"))?;
         for p in &rec.committed {
             notes.push(format!("recovered: finished committing {}", p.display()));
@@ -96,7 +106,8 @@ pub fn prepare(spec: &PipelineSpec, data: DataDir) -> Result<RunSetup, String> {
         }
     }
     let fresh = spec.has(|k| matches!(k, StageKind::Trainer(c) if c.fresh));
-    let loaded = if fresh { None } else { load_live_model(&data, HeatParams::default())? };
+    let needs = ServeNeeds { limits: spec.settings.limits, spectrum_k: scan_spectrum_k(spec), skip_versions };
+    let loaded = if fresh { None } else { load_live_model_for(&data, HeatParams::default(), &needs)? };
     let live = match loaded {
         Some(m) => {
             notes.push(format!(
@@ -131,7 +142,129 @@ pub fn prepare(spec: &PipelineSpec, data: DataDir) -> Result<RunSetup, String> {
             data.labeled().display()
         )
     });
-    Ok(RunSetup { data, live, notes, nothing_to_learn, waiting_hint })
+    if spec.is_daemon() {
+        let marker = Running { pid: std::process::id(), model_version: live.version() };
+        let text = serde_json::to_string(&marker).map_err(|e| e.to_string())?;
+        atomic_write(&data.running_marker(), text.as_bytes()).map_err(|e| e.to_string())?;
+    }
+    Ok(RunSetup { data, live, notes, nothing_to_learn, waiting_hint, lock })
+}
+
+/// The K of the spectra that feed the descriptor stage (the scans'), if the pipeline has one.
+fn scan_spectrum_k(spec: &PipelineSpec) -> Option<usize> {
+    spec.stages
+        .iter()
+        .filter(|s| matches!(s.kind, StageKind::Descriptor))
+        .filter_map(|d| spec.stages.iter().find(|u| Some(&u.name) == d.input.as_ref()))
+        .filter_map(|u| match &u.kind {
+            StageKind::Spectral(c) => Some(c.k),
+            _ => None,
+        })
+        .min()
+}
+
+/// Written to `.inflight/running.json` while a daemon runs; removed when it stops cleanly (or
+/// on a second signal). Found at start, it means the last run crashed (a panic that killed the
+/// process, an abort, an OOM kill, `kill -9`).
+#[derive(serde::Serialize, serde::Deserialize)]
+struct Running {
+    pid: u32,
+    model_version: u64,
+}
+
+/// How often inputs and model versions were in flight when the daemon crashed
+/// (`.inflight/crashes.json`).
+#[derive(Default, serde::Serialize, serde::Deserialize)]
+struct CrashLog {
+    /// Claimed inputs (`scans/NAME`, `labeled/NAME`) → consecutive crashes while in flight.
+    inputs: std::collections::BTreeMap<String, u32>,
+    /// Model version in use → consecutive crashes.
+    models: std::collections::BTreeMap<u64, u32>,
+    /// Versions not to load again.
+    quarantined_models: Vec<u64>,
+}
+
+/// Crashes after which an input or a model is quarantined instead of being tried again.
+const POISON_CRASHES: u32 = 2;
+
+/// After a crash (the running marker is still there), counts it against the inputs that were
+/// in flight and the model in use. An input in flight at two crashes in a row is moved to
+/// `rejected/` with a report (poison: it would crash the daemon at every restart); a model in
+/// use at two crashes in a row, with no input to blame, is not loaded again (the next newest
+/// is used).
+fn account_for_a_crash(data: &DataDir, notes: &mut Vec<String>) -> Result<CrashLog, String> {
+    let log_path = data.root().join(".inflight").join("crashes.json");
+    let mut log: CrashLog =
+        fs::read_to_string(&log_path).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or_default();
+    let marker = data.running_marker();
+    let Some(running) = fs::read_to_string(&marker).ok() else { return Ok(log) };
+    let running: Option<Running> = serde_json::from_str(&running).ok();
+    let mut in_flight = Vec::new();
+    for kind in [InputKind::Scan, InputKind::Labeled] {
+        let dir = data.inflight(kind);
+        for p in super::store::read_dir_sorted(&dir).unwrap_or_default() {
+            if p.is_file() || p.is_symlink() {
+                in_flight.push((kind, p));
+            }
+        }
+    }
+    let key = |kind: InputKind, p: &Path| {
+        let folder = if kind == InputKind::Scan { "scans" } else { "labeled" };
+        format!("{folder}/{}", p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default())
+    };
+    // Counts are of consecutive crashes: inputs no longer in flight are forgotten.
+    let keys: Vec<String> = in_flight.iter().map(|(k, p)| key(*k, p)).collect();
+    log.inputs.retain(|k, _| keys.contains(k));
+    for k in &keys {
+        *log.inputs.entry(k.clone()).or_insert(0) += 1;
+    }
+    let mut quarantined_inputs = 0;
+    for (kind, p) in &in_flight {
+        if log.inputs.get(&key(*kind, p)).copied().unwrap_or(0) < POISON_CRASHES {
+            continue;
+        }
+        let mut job = Job::for_file(0, p, None);
+        job.arrived_as = p.file_name().map(|n| n.to_string_lossy().into_owned());
+        let why = format!(
+            "quarantined: this input was being processed each of the last {POISON_CRASHES} times the \
+             daemon stopped abnormally (a crash, an out-of-memory kill or kill -9), so it is not \
+             retried; move it back to {}/ to try again",
+            if *kind == InputKind::Scan { "incoming" } else { "labeled" }
+        );
+        super::stages::reject(
+            data,
+            &job,
+            &Failure { stage: "recovery".into(), kind: FailureKind::Internal, message: why },
+        )?;
+        log.inputs.remove(&key(*kind, p));
+        quarantined_inputs += 1;
+        notes.push(format!("quarantined {} after {POISON_CRASHES} crashes (see rejected/)", p.display()));
+    }
+    if let Some(r) = running.as_ref().filter(|r| r.model_version > 0) {
+        log.models.retain(|v, _| *v == r.model_version);
+        let n = log.models.entry(r.model_version).or_insert(0);
+        *n += 1;
+        if *n >= POISON_CRASHES
+            && quarantined_inputs == 0
+            && !log.quarantined_models.contains(&r.model_version)
+        {
+            log.quarantined_models.push(r.model_version);
+            log.models.remove(&r.model_version);
+            notes.push(format!(
+                "model v{} was in use at {POISON_CRASHES} crashes in a row: quarantined, not loaded again",
+                r.model_version
+            ));
+        }
+    }
+    notes.push(format!(
+        "the last run did not stop cleanly (pid {}); {} input(s) were in flight",
+        running.as_ref().map_or("?".into(), |r| r.pid.to_string()),
+        in_flight.len()
+    ));
+    let text = serde_json::to_string_pretty(&log).map_err(|e| e.to_string())?;
+    atomic_write(&log_path, text.as_bytes()).map_err(|e| e.to_string())?;
+    let _ = fs::remove_file(&marker);
+    Ok(log)
 }
 
 /// Reads, prepares and runs a pipeline file (the `run` and `watch` commands). `data_dir`
@@ -160,5 +293,8 @@ pub fn run_spec(
     before_run(&setup)?;
     let ctx = PipelineContext::with_shutdown(shutdown.unwrap_or_default());
     let pipeline = build(spec, &setup.data, setup.live.clone(), ctx)?;
-    pipeline.run(options).map_err(|e| format!("cannot start the runtime: {e}"))
+    let report = pipeline.run(options).map_err(|e| format!("cannot start the runtime: {e}"));
+    // A clean stop: the next start is not a crash recovery.
+    let _ = fs::remove_file(setup.data.running_marker());
+    report
 }

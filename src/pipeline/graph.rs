@@ -69,6 +69,21 @@ pub struct PipelineReport {
     pub interrupted: bool,
     /// The live model's version at the end (0: none).
     pub model_version: u64,
+    /// Failures of actors themselves (a source that could not list its folder, a trainer
+    /// whose training failed), as opposed to rejected jobs.
+    pub problems: Vec<String>,
+}
+
+impl PipelineReport {
+    /// Jobs that reached a sink with a result.
+    pub fn completed(&self) -> u64 {
+        self.stages.iter().map(|s| s.completed).sum()
+    }
+
+    /// Jobs that reached a sink failed (bad input or an internal error; not interrupted).
+    pub fn rejected(&self) -> u64 {
+        self.stages.iter().map(|s| s.rejected).sum()
+    }
 }
 
 impl PipelineReport {
@@ -147,7 +162,8 @@ impl Pipeline {
         let n = name.to_string();
         let metrics = self.ctx.metrics_for(name);
         let in_rx = input.rx;
-        self.spawns.push(Box::new(move || tokio::spawn(run_sink(sink, n, in_rx, metrics))));
+        let ctx = self.ctx.clone();
+        self.spawns.push(Box::new(move || tokio::spawn(run_sink(sink, n, in_rx, metrics, ctx))));
     }
 
     /// Runs every actor until the sources are exhausted and every job has reached its sink,
@@ -162,6 +178,7 @@ impl Pipeline {
         let ctx = self.ctx.clone();
         let live = self.live.clone();
         let run_ctx = self.ctx.clone();
+        let marker = self.data.running_marker();
         rt.block_on(async move {
             let ctx = run_ctx;
             let handles: Vec<_> = self.spawns.into_iter().map(|s| s()).collect();
@@ -199,8 +216,10 @@ impl Pipeline {
                             eprintln!("shapeforest: shutting down — finishing jobs in flight (signal again to exit at once)");
                             shutdown.trigger();
                             if options.handle_signals {
-                                tokio::spawn(async {
+                                tokio::spawn(async move {
                                     shutdown_signal(true).await;
+                                    // Asked for, not a crash: in-flight inputs are not suspects.
+                                    let _ = std::fs::remove_file(&marker);
                                     eprintln!("shapeforest: exiting now; claimed inputs are taken up at the next start");
                                     std::process::exit(130);
                                 });
@@ -225,6 +244,7 @@ impl Pipeline {
             elapsed_s: t0.elapsed().as_secs_f64(),
             interrupted: ctx.shutdown.is_triggered(),
             model_version: live.version(),
+            problems: ctx.problems(),
         })
     }
 }

@@ -35,6 +35,8 @@ pub struct Job {
     pub source: Option<PathBuf>,
     /// The label map that came with the input, if any.
     pub labels_file: Option<PathBuf>,
+    /// Other files that travel with the input (the `.tri` of a TOSCA `.vert`).
+    pub companions: Vec<PathBuf>,
     /// The file name the input arrived under (for reports and output names).
     pub arrived_as: Option<String>,
     /// When the job entered the pipeline.
@@ -51,6 +53,7 @@ impl Job {
             name: name.into(),
             source: None,
             labels_file: None,
+            companions: Vec::new(),
             arrived_as: None,
             started: Instant::now(),
             stage_seconds: Vec::new(),
@@ -64,10 +67,16 @@ impl Job {
             name: shape_stem(path),
             source: Some(path.to_path_buf()),
             labels_file,
+            companions: Vec::new(),
             arrived_as: path.file_name().and_then(|n| n.to_str()).map(str::to_string),
             started: Instant::now(),
             stage_seconds: Vec::new(),
         }
+    }
+
+    /// Every claimed file of the job: the input, its label map, its companions.
+    pub fn files(&self) -> impl Iterator<Item = &PathBuf> {
+        self.source.iter().chain(self.labels_file.iter()).chain(self.companions.iter())
     }
 
     /// The input's path for messages: the file, or the generated name.

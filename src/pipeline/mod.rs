@@ -10,6 +10,7 @@
 //! - [`model`]: the live model, swapped atomically by the trainer while predictions go on.
 //! - [`store`]: the daemon's data folder and the claim / commit / recover protocol that makes it
 //!   restart-safe.
+//! - [`lock`]: the exclusive lock on a data folder (one process at a time).
 //! - [`config`]: `pipelines/*.toml` — parsing, validation naming stage and key, building.
 //! - [`graph`]: [`Pipeline`], for composing actors in code with typed ports.
 //! - [`daemon`]: preparing a data folder (recovery, model loading, the synthetic bootstrap) and
@@ -21,6 +22,7 @@ pub mod actor;
 pub mod config;
 pub mod daemon;
 pub mod graph;
+pub mod lock;
 pub mod message;
 pub mod model;
 pub mod stages;
@@ -30,6 +32,7 @@ pub use actor::{Emitter, PipelineContext, Shutdown, Sink, Source, Stage, StageMe
 pub use config::{build, ConfigError, PipelineSpec, PortType, Settings, StageKind, StageSpec};
 pub use daemon::{bootstrap_synthetic, prepare, run_pipeline, run_spec, RunSetup};
 pub use graph::{Pipeline, PipelineReport, Port, RunOptions};
+pub use lock::DataLock;
 pub use message::{
     shape_stem, DescribedShape, Envelope, Failure, FailureKind, InputFile, Job, JobId, LabelSpec,
     MatchedShape, PredictedShape, Shape, SparselyMatched, SpectralShape,

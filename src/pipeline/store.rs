@@ -21,22 +21,34 @@
 //! claimed inputs to `incoming/` and `labeled/`: nothing is lost and nothing is matched twice.
 
 use std::{
+    collections::HashMap,
     fs, io,
     path::{Path, PathBuf},
+    sync::{Arc, Mutex},
+    time::{Duration, Instant},
 };
 
 use serde::{Deserialize, Serialize};
 
-use crate::forest::RandomForest;
+use crate::{forest::RandomForest, limits::Limits};
 
-/// The folder layout of a daemon (see the module documentation).
+/// The folder layout of a daemon (see the module documentation). Clones share the retry
+/// schedule of inputs whose outputs could not be written ([`DataDir::defer`]).
 #[derive(Clone, Debug)]
 pub struct DataDir {
     root: PathBuf,
+    retries: Arc<Mutex<HashMap<(InputKind, String), Retry>>>,
+}
+
+/// When a deferred input may be taken up again, and how often it was deferred.
+#[derive(Clone, Copy, Debug)]
+struct Retry {
+    not_before: Instant,
+    attempts: u32,
 }
 
 /// Which kind of input a file is.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum InputKind {
     /// A scan to match.
     Scan,
@@ -67,7 +79,49 @@ pub struct Recovery {
 impl DataDir {
     /// The layout under `root` (nothing is created).
     pub fn new(root: impl Into<PathBuf>) -> Self {
-        Self { root: root.into() }
+        Self { root: root.into(), retries: Arc::default() }
+    }
+
+    /// Puts a claimed input back into its arrivals folder after its outputs could not be
+    /// written (a full disk, a read-only folder): it stays queued, and the watcher takes it up
+    /// again after a back-off (1 s, doubling, at most a minute). Returns the path it is back
+    /// under and the delay.
+    pub fn defer(
+        &self,
+        kind: InputKind,
+        claimed: &Path,
+        companions: &[PathBuf],
+    ) -> io::Result<(PathBuf, Duration)> {
+        let name = file_name(claimed);
+        let target = unique_path(&self.arrivals(kind), &name);
+        let stem = super::message::shape_stem(&target);
+        // Label maps and TOSCA `.tri` files first: the watcher takes the mesh with them.
+        for c in companions.iter().filter(|c| c.is_file()) {
+            let ext = file_name(c).strip_prefix(&super::message::shape_stem(c)).unwrap_or("").to_string();
+            move_file(c, &self.arrivals(kind).join(format!("{stem}{ext}")))?;
+        }
+        move_file(claimed, &target)?;
+        let mut retries = self.retries.lock().unwrap_or_else(|p| p.into_inner());
+        let entry = retries
+            .entry((kind, file_name(&target)))
+            .or_insert(Retry { not_before: Instant::now(), attempts: 0 });
+        entry.attempts = entry.attempts.saturating_add(1);
+        let delay =
+            Duration::from_secs(1u64 << entry.attempts.saturating_sub(1).min(6)).min(Duration::from_secs(60));
+        entry.not_before = Instant::now() + delay;
+        Ok((target, delay))
+    }
+
+    /// Whether an arrived file is waiting out a back-off after a deferral.
+    pub fn is_deferred(&self, kind: InputKind, name: &str) -> bool {
+        let retries = self.retries.lock().unwrap_or_else(|p| p.into_inner());
+        retries.get(&(kind, name.to_string())).is_some_and(|r| Instant::now() < r.not_before)
+    }
+
+    /// Forgets the back-off of an input whose outputs were written.
+    pub fn clear_deferral(&self, kind: InputKind, name: &str) {
+        let mut retries = self.retries.lock().unwrap_or_else(|p| p.into_inner());
+        retries.remove(&(kind, name.to_string()));
     }
 
     /// The root folder.
@@ -113,6 +167,11 @@ impl DataDir {
     /// `.inflight/scans` or `.inflight/labeled`.
     pub fn inflight(&self, kind: InputKind) -> PathBuf {
         self.root.join(".inflight").join(kind.folder())
+    }
+
+    /// `.inflight/running.json`: present while a daemon runs (see [`crate::pipeline::daemon`]).
+    pub fn running_marker(&self) -> PathBuf {
+        self.root.join(".inflight").join("running.json")
     }
 
     /// The folder a kind of input arrives in.
@@ -174,7 +233,8 @@ impl DataDir {
                 continue;
             }
             for entry in read_dir_sorted(&dir)? {
-                if !entry.is_file() {
+                // Files and links (a link is moved, never followed); not folders.
+                if fs::symlink_metadata(&entry).map_or(true, |m| m.is_dir()) {
                     continue;
                 }
                 let target = unique_path(&self.arrivals(kind), &file_name(&entry));
@@ -250,17 +310,25 @@ pub fn label_sidecar(mesh: &Path) -> Option<PathBuf> {
 
 /// Reads a label map for a mesh of `n_vertices`: `.vts` files are per-label and 1-based (line
 /// `k` = the vertex carrying label `k`); anything else is per-vertex and 0-based (line `i` = the
-/// label of vertex `i`; `-1` or `none` for an unlabelled vertex). Errors name the file and line.
-pub fn read_labels(path: &Path, n_vertices: usize) -> Result<Vec<Option<u32>>, String> {
-    let file = fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let reader = io::BufReader::new(file);
+/// label of vertex `i`; `-1` or `none` for an unlabelled vertex). The file must be a regular
+/// file (links are not followed) within `limits.max_file_bytes`, and every label below
+/// `limits.max_labels`. Errors name the file and line.
+pub fn read_labels(path: &Path, n_vertices: usize, limits: &Limits) -> Result<Vec<Option<u32>>, String> {
+    let bytes =
+        crate::mesh::read_file_limited(path, limits.max_file_bytes, false).map_err(|e| e.to_string())?;
     let per_label = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("vts"));
+    let max_labels = limits.max_labels.min(u32::MAX as usize);
     let labels = if per_label {
-        crate::forest::read_per_label_map(reader, true, n_vertices)
+        crate::forest::read_per_label_map(bytes.as_slice(), true, n_vertices)
     } else {
-        crate::forest::read_label_map(reader, false, u32::MAX as usize)
+        crate::forest::read_label_map(bytes.as_slice(), false, max_labels)
     }
-    .map_err(|e| format!("{}: {e}", path.display()))?;
+    .map_err(|e| match e {
+        crate::forest::ForestError::LabelMap { line, reason } if reason.contains("outside the label set") => {
+            format!("{}: line {line}: {reason} (limits.max_labels)", path.display())
+        }
+        e => format!("{}: {e}", path.display()),
+    })?;
     if labels.len() != n_vertices {
         return Err(format!(
             "{}: {} labels for a mesh of {n_vertices} vertices (one line per vertex expected)",
@@ -268,8 +336,25 @@ pub fn read_labels(path: &Path, n_vertices: usize) -> Result<Vec<Option<u32>>, S
             labels.len()
         ));
     }
-    if labels.iter().all(Option::is_none) {
+    let labelled = labels.iter().flatten().count();
+    if labelled == 0 {
         return Err(format!("{}: no vertex has a label", path.display()));
+    }
+    if let Some(&top) = labels.iter().flatten().max() {
+        if top as usize >= max_labels {
+            return Err(format!(
+                "{}: label {top} is outside the label set of {max_labels} (limits.max_labels)",
+                path.display()
+            ));
+        }
+        if per_label && labelled * 2 < top as usize + 1 {
+            tracing::warn!(
+                file = %path.display(),
+                "{} of {} labels landed on a vertex of their own (several labels name one vertex)",
+                labelled,
+                top + 1
+            );
+        }
     }
     Ok(labels)
 }
@@ -395,12 +480,76 @@ pub fn latest_manifest(dir: &Path) -> Option<ModelManifest> {
 }
 
 /// The newest complete model version in `dir` that loads, with the problems met on the way
-/// (unreadable manifests or models are skipped, newest first).
+/// (unreadable manifests or models are skipped, newest first), under the default limits.
 pub fn latest_model(dir: &Path) -> (Option<(ModelManifest, RandomForest)>, Vec<String>) {
+    newest_model_that(dir, &Limits::default(), |m, f| Ok((m, f)))
+}
+
+/// Whether a manifest's `model_file` is a plain file name inside the models folder (no folder
+/// part, no `..`, not hidden, ending in `.sfm`): a manifest never makes the daemon load a file
+/// from elsewhere.
+///
+/// ```
+/// use shapeforest::pipeline::store::is_model_file_name;
+/// assert!(is_model_file_name("model-v000003.sfm"));
+/// assert!(!is_model_file_name("../../../x.sfm"));
+/// assert!(!is_model_file_name("/tmp/x.sfm"));
+/// ```
+pub fn is_model_file_name(name: &str) -> bool {
+    !name.starts_with('.')
+        && name.ends_with(".sfm")
+        && !name.contains(['/', '\\', '\0'])
+        && Path::new(name).file_name().is_some_and(|n| n == name)
+}
+
+/// The newest model version in `dir` that loads within `limits` and that `serve` accepts
+/// (`serve` turns it into what the caller needs, or says why it cannot serve), with the
+/// problems met on the way, newest first: unreadable manifests, a `model_file` outside the
+/// folder, files over `limits.max_model_bytes`, corrupt files, dimensions over the limits, and
+/// the reasons `serve` gave.
+pub fn newest_model_that<T>(
+    dir: &Path,
+    limits: &Limits,
+    mut serve: impl FnMut(ModelManifest, RandomForest) -> Result<T, String>,
+) -> (Option<T>, Vec<String>) {
     let (manifests, mut problems) = manifests_newest_first(dir);
     for manifest in manifests {
-        match RandomForest::load(dir.join(&manifest.model_file)) {
-            Ok(f) => return (Some((manifest, f)), problems),
+        let mpath = dir.join(format!("model-v{:06}.json", manifest.version));
+        if !is_model_file_name(&manifest.model_file) {
+            problems.push(format!(
+                "{}: model_file {:?} is not a file name inside {}",
+                mpath.display(),
+                crate::limits::escape_name(&manifest.model_file),
+                dir.display()
+            ));
+            continue;
+        }
+        let path = dir.join(&manifest.model_file);
+        match fs::symlink_metadata(&path) {
+            Ok(m) if !m.is_file() => {
+                problems.push(format!("{}: not a regular file", path.display()));
+                continue;
+            }
+            Ok(m) if m.len() > limits.max_model_bytes => {
+                problems.push(format!(
+                    "{}: {} bytes, more than limits.max_model_bytes = {}",
+                    path.display(),
+                    m.len(),
+                    limits.max_model_bytes
+                ));
+                continue;
+            }
+            _ => {}
+        }
+        let version = manifest.version;
+        match RandomForest::load(&path) {
+            Ok(f) => match limits.check_model(&f) {
+                Ok(()) => match serve(manifest, f) {
+                    Ok(t) => return (Some(t), problems),
+                    Err(e) => problems.push(format!("model v{version} cannot serve: {e}")),
+                },
+                Err(e) => problems.push(format!("{}: {e}", path.display())),
+            },
             Err(e) => problems.push(e.to_string()),
         }
     }

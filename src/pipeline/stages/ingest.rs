@@ -6,7 +6,7 @@ use serde::Deserialize;
 
 use crate::{
     forest::labels_identity,
-    mesh::read_mesh_with_report,
+    mesh::read_mesh_limited,
     pipeline::{
         actor::Stage,
         message::{Failure, InputFile, Job, LabelSpec, Shape},
@@ -43,12 +43,27 @@ impl Default for IngestConfig {
 /// Reads meshes and their label maps.
 pub struct IngestStage {
     config: IngestConfig,
+    limits: crate::limits::Limits,
+    follow_symlinks: bool,
 }
 
 impl IngestStage {
-    /// An ingest stage.
+    /// An ingest stage (default limits; symbolic links are followed).
     pub fn new(config: IngestConfig) -> Self {
-        Self { config }
+        Self { config, limits: crate::limits::Limits::default(), follow_symlinks: true }
+    }
+
+    /// Reads within `limits` (file size, vertices, faces, labels), checked before allocating.
+    pub fn with_limits(mut self, limits: crate::limits::Limits) -> Self {
+        self.limits = limits;
+        self
+    }
+
+    /// Whether a symbolic link is followed (`false` for files dropped into a watched folder:
+    /// a link there is refused unopened).
+    pub fn follow_symlinks(mut self, follow: bool) -> Self {
+        self.follow_symlinks = follow;
+        self
     }
 }
 
@@ -58,7 +73,8 @@ impl Stage for IngestStage {
 
     fn process(&mut self, job: &mut Job, input: InputFile) -> Result<Shape, Failure> {
         let bad = |m: String| Failure::bad_input("ingest", m);
-        let (mesh, report) = read_mesh_with_report(&input.path).map_err(|e| bad(e.to_string()))?;
+        let (mesh, report) = read_mesh_limited(&input.path, &self.limits, self.follow_symlinks)
+            .map_err(|e| bad(e.to_string()))?;
         for w in report.warnings.iter().take(5) {
             tracing::info!(job = job.id, file = %input.path.display(), "{w}");
         }
@@ -80,7 +96,7 @@ impl Stage for IngestStage {
         let labels = match &input.labels {
             None => None,
             Some(LabelSpec::Identity) => Some(Arc::new(labels_identity(n))),
-            Some(LabelSpec::File(f)) => Some(Arc::new(read_labels(f, n).map_err(bad)?)),
+            Some(LabelSpec::File(f)) => Some(Arc::new(read_labels(f, n, &self.limits).map_err(bad)?)),
         };
         Ok(Shape { mesh: Arc::new(mesh), labels })
     }

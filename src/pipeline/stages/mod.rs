@@ -16,10 +16,12 @@ pub use ingest::{IngestConfig, IngestStage};
 pub use regularize::{
     check_regularizer, regularizer_params, FmapConfig, FmapStage, MatcherConfig, MatcherStage,
 };
-pub use sink::{is_claimed, reject, MatchSink, MatchSinkConfig};
+pub use sink::{defer, is_claimed, reject, reject_or_defer, MatchSink, MatchSinkConfig};
 pub use source::{
     natural_key, FolderConfig, FolderSource, Labels, SyntheticConfig, SyntheticSource, WatchConfig,
     WatchKind, WatchSource,
 };
 pub use spectral::{SpectralConfig, SpectralStage};
-pub use trainer::{label_table, load_live_model, TrainMode, TrainerConfig, TrainerSink};
+pub use trainer::{
+    label_table, load_live_model, load_live_model_for, ServeNeeds, TrainMode, TrainerConfig, TrainerSink,
+};

@@ -13,6 +13,7 @@ use serde::Deserialize;
 
 use crate::{
     forest::labels_identity,
+    limits::escape_name,
     pipeline::{
         actor::{Emitter, Source},
         message::{shape_stem, Envelope, Failure, InputFile, Job, Shape},
@@ -166,7 +167,8 @@ pub struct WatchConfig {
     #[serde(default = "default_kind")]
     pub kind: WatchKind,
     /// A file counts as complete once its size and modification time have not changed for
-    /// this long (milliseconds). Default 500.
+    /// this long (milliseconds) and no process holds it open for writing. Default 2000 (a
+    /// writer that closes the file between pieces may pause that long).
     #[serde(default = "default_settle")]
     pub settle_ms: u64,
     /// Full rescans of the folder, in milliseconds, behind the file-system events. Default 2000.
@@ -181,7 +183,7 @@ fn default_kind() -> WatchKind {
     WatchKind::Scan
 }
 fn default_settle() -> u64 {
-    500
+    2000
 }
 fn default_rescan() -> u64 {
     2000
@@ -214,56 +216,184 @@ struct Seen {
     warned: bool,
 }
 
+/// Files a watcher leaves alone, each logged once (so nothing is ignored without a word).
+#[derive(Default)]
+struct Noted {
+    first_seen: HashMap<PathBuf, Instant>,
+    logged: std::collections::HashSet<PathBuf>,
+}
+
+impl Noted {
+    /// Logs `why` about `path` once, after it has been there for `after`.
+    fn note(&mut self, path: &Path, after: Duration, why: &str) {
+        let since = *self.first_seen.entry(path.to_path_buf()).or_insert_with(Instant::now);
+        if since.elapsed() >= after && self.logged.insert(path.to_path_buf()) {
+            tracing::warn!(file = %escape_name(&path.display().to_string()), "left alone: {why}");
+        }
+    }
+
+    fn retain(&mut self, present: &std::collections::HashSet<PathBuf>) {
+        self.first_seen.retain(|p, _| present.contains(p));
+        self.logged.retain(|p| present.contains(p));
+    }
+}
+
+/// How long a file nobody will take is left before the watcher says so.
+const NOTE_AFTER: Duration = Duration::from_secs(5);
+
+/// What a scan of the watched folder found.
+#[derive(Default)]
+struct Scan {
+    /// Regular files stable for the settle time, oldest observation first.
+    ready: Vec<PathBuf>,
+    /// Symbolic links, FIFOs, sockets, devices: refused without being opened.
+    not_regular: Vec<(PathBuf, &'static str)>,
+}
+
+/// Whether a file name is the `.tri` half of a TOSCA pair (`NAME.tri`, `NAME.tri.gz`).
+fn is_tosca_tri(path: &Path) -> bool {
+    let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+    name.strip_suffix(".gz").unwrap_or(&name).ends_with(".tri")
+}
+
+/// Whether a file name is the `.vert` half of a TOSCA pair.
+fn is_tosca_vert(path: &Path) -> bool {
+    let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+    name.strip_suffix(".gz").unwrap_or(&name).ends_with(".vert")
+}
+
+/// The other half of a TOSCA pair (`a.vert` ↔ `a.tri`, keeping a `.gz`), if it exists.
+fn tosca_sibling(path: &Path) -> Option<PathBuf> {
+    let name = path.file_name()?.to_string_lossy().into_owned();
+    let (base, gz) = match name.strip_suffix(".gz") {
+        Some(b) => (b.to_string(), ".gz"),
+        None => (name.clone(), ""),
+    };
+    let (stem, ext) = base.rsplit_once('.')?;
+    let other = match ext.to_ascii_lowercase().as_str() {
+        "vert" => "tri",
+        "tri" => "vert",
+        _ => return None,
+    };
+    let dir = path.parent()?;
+    [format!("{stem}.{other}{gz}"), format!("{stem}.{other}")]
+        .into_iter()
+        .map(|n| dir.join(n))
+        .find(|p| p.is_file())
+}
+
+/// The regular files among `candidates` that some process holds open for writing, found by
+/// reading `/proc/*/fd` and `/proc/*/fdinfo` (Linux; elsewhere, or for processes whose `/proc`
+/// entries are not readable, nothing is found and the settle time alone decides). A copier
+/// that pauses longer than the settle time while keeping the file open is not read half-way.
+pub fn open_for_writing(candidates: &[PathBuf]) -> std::collections::HashSet<PathBuf> {
+    let mut found = std::collections::HashSet::new();
+    if candidates.is_empty() {
+        return found;
+    }
+    let canon: HashMap<PathBuf, &PathBuf> =
+        candidates.iter().filter_map(|p| fs::canonicalize(p).ok().map(|c| (c, p))).collect();
+    let Ok(procs) = fs::read_dir("/proc") else { return found };
+    for pe in procs.flatten() {
+        let pid = pe.file_name();
+        if !pid.to_string_lossy().bytes().all(|b| b.is_ascii_digit()) {
+            continue;
+        }
+        let Ok(fds) = fs::read_dir(pe.path().join("fd")) else { continue };
+        for fd in fds.flatten() {
+            let Ok(target) = fs::read_link(fd.path()) else { continue };
+            let Some(orig) = canon.get(&target) else { continue };
+            let info = fs::read_to_string(pe.path().join("fdinfo").join(fd.file_name())).unwrap_or_default();
+            let flags = info
+                .lines()
+                .find_map(|l| l.strip_prefix("flags:"))
+                .and_then(|f| u32::from_str_radix(f.trim(), 8).ok())
+                .unwrap_or(0);
+            if flags & 0o3 != 0 {
+                found.insert((*orig).clone());
+            }
+        }
+    }
+    found
+}
+
 /// Watches a folder of the data directory (`notify` events, debounced, plus periodic rescans),
 /// claims each complete file into `.inflight/` and emits it.
+///
+/// A file is complete once its size and modification time have not changed for `settle_ms`
+/// and no process holds it open for writing. Copies in progress under a temporary name (a
+/// dot-file, `*.part`, `*.tmp`, …, renamed when done) are left alone. Symbolic links, FIFOs and
+/// devices are refused without being opened. A TOSCA `.vert` is taken with its `.tri`.
 pub struct WatchSource {
     data: DataDir,
     config: WatchConfig,
+    noted: Noted,
 }
 
 impl WatchSource {
     /// A watcher over `data`'s `incoming/` or `labeled/`.
     pub fn new(data: DataDir, config: WatchConfig) -> Self {
-        Self { data, config }
+        Self { data, config, noted: Noted::default() }
     }
 
     fn kind(&self) -> InputKind {
         self.config.kind.into()
     }
 
-    /// Moves `path` (and its label map) into `.inflight/`, keeping the pair's stems equal.
-    fn claim(&self, path: &Path, labels: Option<&Path>) -> std::io::Result<(PathBuf, Option<PathBuf>)> {
+    /// Moves `path` (and the files that travel with it) into `.inflight/`, keeping their stems
+    /// equal to the claimed mesh's.
+    fn claim(&self, path: &Path, with: &[PathBuf]) -> std::io::Result<(PathBuf, Vec<PathBuf>)> {
         let dir = self.data.inflight(self.kind());
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         let target = unique_path(&dir, &name);
-        let labels_target = labels.map(|l| {
-            let ext = l.extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or_default();
-            dir.join(format!("{}.{ext}", shape_stem(&target)))
-        });
-        if let (Some(l), Some(t)) = (labels, &labels_target) {
-            move_file(l, t)?;
+        let stem = shape_stem(&target);
+        let mut moved = Vec::new();
+        for w in with {
+            let wname = w.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let ext = wname.strip_prefix(&shape_stem(w)).unwrap_or("").to_string();
+            let t = dir.join(format!("{stem}{ext}"));
+            move_file(w, &t)?;
+            moved.push(t);
         }
         move_file(path, &target)?;
-        Ok((target, labels_target))
+        Ok((target, moved))
     }
 
-    /// Files of the folder that have been stable for the settle time, oldest observation first.
-    fn ready(&self, seen: &mut HashMap<PathBuf, Seen>) -> Vec<PathBuf> {
+    /// Lists the folder: files stable for the settle time (and not open for writing), and
+    /// things that are not regular files.
+    fn scan(&mut self, seen: &mut HashMap<PathBuf, Seen>) -> Scan {
         let settle = Duration::from_millis(self.config.settle_ms);
         let dir = self.data.arrivals(self.kind());
-        let Ok(entries) = read_dir_sorted(&dir) else { return Vec::new() };
+        let Ok(entries) = read_dir_sorted(&dir) else { return Scan::default() };
         let mut present = std::collections::HashSet::new();
-        let mut ready = Vec::new();
+        let mut out = Scan::default();
+        let mut stable = Vec::new();
         for p in entries {
-            if is_transient_file(&p) {
-                continue;
-            }
-            let Ok(meta) = fs::metadata(&p) else { continue };
-            if !meta.is_file() {
-                continue;
-            }
             present.insert(p.clone());
-            let (size, modified) = (meta.len(), meta.modified().ok());
+            let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            if self.data.is_deferred(self.kind(), &name) {
+                continue;
+            }
+            let Ok(lmeta) = fs::symlink_metadata(&p) else { continue };
+            let ft = lmeta.file_type();
+            if ft.is_dir() {
+                self.noted.note(&p, Duration::ZERO, "a folder (drop files, not folders)");
+                continue;
+            }
+            if !ft.is_file() {
+                let what = if ft.is_symlink() { "a symbolic link" } else { "not a regular file" };
+                out.not_regular.push((p, what));
+                continue;
+            }
+            if is_transient_file(&p) {
+                self.noted.note(
+                    &p,
+                    NOTE_AFTER,
+                    "its name marks a copy in progress (a leading dot, or .part/.tmp/…); it is read once renamed",
+                );
+                continue;
+            }
+            let (size, modified) = (lmeta.len(), lmeta.modified().ok());
             let now = Instant::now();
             let e = seen.entry(p.clone()).or_insert(Seen { size, modified, since: now, warned: false });
             if e.size != size || e.modified != modified {
@@ -271,12 +401,21 @@ impl WatchSource {
                 continue;
             }
             if now.duration_since(e.since) >= settle {
-                ready.push(p);
+                stable.push(p);
             }
         }
+        // Still open for writing: wait another settle period.
+        let writing = open_for_writing(&stable);
+        for p in &writing {
+            if let Some(s) = seen.get_mut(p) {
+                s.since = Instant::now();
+            }
+        }
+        out.ready = stable.into_iter().filter(|p| !writing.contains(p)).collect();
         seen.retain(|p, _| present.contains(p));
-        ready.sort_by_key(|p| seen.get(p).map(|s| s.since));
-        ready
+        self.noted.retain(&present);
+        out.ready.sort_by_key(|p| seen.get(p).map(|s| s.since));
+        out
     }
 }
 
@@ -319,8 +458,16 @@ impl Source for WatchSource {
             if dirty || pending || last_scan.elapsed() >= rescan {
                 last_scan = Instant::now();
                 dirty = false;
-                let ready = self.ready(&mut seen);
-                for path in ready {
+                let scan = self.scan(&mut seen);
+                for (path, what) in scan.not_regular {
+                    if out.shutdown().is_triggered() {
+                        return Ok(());
+                    }
+                    if !self.refuse(&path, what, out) {
+                        return Ok(());
+                    }
+                }
+                for path in scan.ready {
                     if out.shutdown().is_triggered() {
                         return Ok(());
                     }
@@ -340,34 +487,94 @@ impl Source for WatchSource {
 }
 
 impl WatchSource {
+    /// Claims a symbolic link (or FIFO, device, …) without opening it, and emits it as a bad
+    /// input: the report says what it is and quotes nothing of it.
+    fn refuse(&mut self, path: &Path, what: &str, out: &Emitter<InputFile>) -> bool {
+        let Ok((claimed, _)) = self.claim(path, &[]) else { return true };
+        let mut job = Job::for_file(out.next_job_id(), &claimed, None);
+        job.arrived_as = path.file_name().map(|n| n.to_string_lossy().into_owned());
+        job.name = shape_stem(&claimed);
+        let body = Err(Failure::bad_input(
+            "source",
+            format!(
+                "{} is {what}; files dropped here are read only if they are regular files \
+                 (links are not followed): copy or move the file itself in",
+                path.display()
+            ),
+        ));
+        tracing::info!(job = job.id, file = %escape_name(&path.display().to_string()), "claimed ({what})");
+        out.emit(Envelope { job, body })
+    }
+
     /// Claims and emits one stable file; returns `false` when the pipeline no longer takes jobs.
-    fn offer(&self, path: &Path, seen: &mut HashMap<PathBuf, Seen>, out: &Emitter<InputFile>) -> bool {
+    fn offer(&mut self, path: &Path, seen: &mut HashMap<PathBuf, Seen>, out: &Emitter<InputFile>) -> bool {
         let kind = self.kind();
-        let is_mesh = is_mesh_file(path);
-        let labels = if kind == InputKind::Labeled && is_mesh { label_sidecar(path) } else { None };
-        match (kind, is_mesh) {
-            (InputKind::Labeled, false) => return true, // label maps travel with their mesh
-            (InputKind::Labeled, true) if labels.is_none() => {
-                if let Some(s) = seen.get_mut(path) {
-                    if !s.warned && s.since.elapsed() > Duration::from_secs(5) {
-                        tracing::warn!(file = %path.display(), "waiting for its label map (NAME.labels or NAME.vts)");
-                        s.warned = true;
-                    }
-                }
-                return true;
+        let settled = |p: &Path, seen: &HashMap<PathBuf, Seen>| {
+            seen.get(p).is_some_and(|s| s.since.elapsed() >= Duration::from_millis(self.config.settle_ms))
+        };
+        // The `.tri` of a TOSCA pair travels with its `.vert`.
+        if is_tosca_tri(path) {
+            if tosca_sibling(path).is_none() {
+                self.noted.note(
+                    path,
+                    NOTE_AFTER,
+                    "a TOSCA .tri without its .vert (NAME.vert); waiting for it",
+                );
             }
-            (InputKind::Labeled, true) => {
-                // The label map must be complete too.
-                if let Some(l) = &labels {
-                    match seen.get(l) {
-                        Some(s) if s.since.elapsed() >= Duration::from_millis(self.config.settle_ms) => {}
-                        _ => return true,
-                    }
-                }
-            }
-            _ => {}
+            return true;
         }
-        let claimed = match self.claim(path, labels.as_deref()) {
+        let is_label_map = |p: &Path| {
+            p.extension().is_some_and(|e| e.eq_ignore_ascii_case("labels") || e.eq_ignore_ascii_case("vts"))
+        };
+        if kind == InputKind::Labeled && is_label_map(path) {
+            // Label maps travel with their mesh.
+            let stem = shape_stem(path);
+            let dir = path.parent().unwrap_or(Path::new("."));
+            let has_mesh = read_dir_sorted(dir)
+                .unwrap_or_default()
+                .iter()
+                .any(|p| is_mesh_file(p) && shape_stem(p) == stem);
+            if !has_mesh {
+                self.noted.note(
+                    path,
+                    NOTE_AFTER,
+                    "a label map without its mesh (NAME.off, .obj, .ply or .vert)",
+                );
+            }
+            return true;
+        }
+        let is_mesh = is_mesh_file(path);
+        let mut with = Vec::new();
+        if is_mesh && kind == InputKind::Labeled {
+            match label_sidecar(path) {
+                Some(l) if settled(&l, seen) => with.push(l),
+                Some(_) => return true, // the label map must be complete too
+                None => {
+                    if let Some(s) = seen.get_mut(path) {
+                        if !s.warned && s.since.elapsed() > NOTE_AFTER {
+                            tracing::warn!(file = %escape_name(&path.display().to_string()), "waiting for its label map (NAME.labels or NAME.vts)");
+                            s.warned = true;
+                        }
+                    }
+                    return true;
+                }
+            }
+        }
+        if is_mesh && is_tosca_vert(path) {
+            match tosca_sibling(path) {
+                Some(t) if settled(&t, seen) => with.push(t),
+                Some(_) => return true,
+                None => {
+                    self.noted.note(
+                        path,
+                        NOTE_AFTER,
+                        "a TOSCA .vert without its .tri (NAME.tri); waiting for it",
+                    );
+                    return true;
+                }
+            }
+        }
+        let claimed = match self.claim(path, &with) {
             Ok(c) => c,
             Err(e) => {
                 // Gone meanwhile, or not ours to move: look again at the next scan.
@@ -376,11 +583,15 @@ impl WatchSource {
             }
         };
         seen.remove(path);
-        if let Some(l) = &labels {
-            seen.remove(l);
+        for w in &with {
+            seen.remove(w);
         }
-        let (claimed_path, claimed_labels) = claimed;
+        let (claimed_path, moved) = claimed;
+        let (claimed_labels, companions): (Vec<PathBuf>, Vec<PathBuf>) =
+            moved.into_iter().partition(|p| is_label_map(p));
+        let claimed_labels = claimed_labels.into_iter().next();
         let mut job = Job::for_file(out.next_job_id(), &claimed_path, claimed_labels.clone());
+        job.companions = companions;
         job.arrived_as = path.file_name().map(|n| n.to_string_lossy().into_owned());
         job.name = shape_stem(&claimed_path);
         let body = if is_mesh {
@@ -389,12 +600,12 @@ impl WatchSource {
             Err(Failure::bad_input(
                 "source",
                 format!(
-                    "{} is not a mesh file shapeforest reads (.off .obj .ply .vert, optionally .gz)",
+                    "{} is not a mesh file shapeforest reads (.off .obj .ply, .vert with its .tri, optionally .gz)",
                     path.display()
                 ),
             ))
         };
-        tracing::info!(job = job.id, file = %path.display(), "claimed");
+        tracing::info!(job = job.id, file = %escape_name(&path.display().to_string()), "claimed");
         out.emit(Envelope { job, body })
     }
 }

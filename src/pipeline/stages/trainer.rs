@@ -20,13 +20,13 @@ use crate::{
         reference_table, ModelReference, RandomForest, RandomForestValidParams, TrainingSet, TrainingShape,
     },
     geodesic::HeatParams,
-    mesh::{read_mesh, write_mesh, Mesh},
+    mesh::{read_mesh_limited, write_mesh, Mesh},
     pipeline::{
         actor::Sink,
         message::{shape_stem, Failure, Job, SpectralShape},
         model::{LiveModel, ModelState},
         store::{
-            atomic_write, label_map_text, latest_manifest, latest_model, move_file, prune_models,
+            atomic_write, label_map_text, latest_manifest, move_file, newest_model_that, prune_models,
             read_labels, save_model_version, stored_shapes, DataDir, ModelManifest,
         },
     },
@@ -34,7 +34,7 @@ use crate::{
     spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
 };
 
-use super::sink::{is_claimed, reject, unix_now};
+use super::sink::{defer, is_claimed, reject_or_defer, unix_now};
 
 /// When the trainer updates the model.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
@@ -191,13 +191,14 @@ fn load_stored(
     name: &str,
     params: &SpectrumParams,
     cache: Option<&SpectrumCache>,
+    limits: &crate::limits::Limits,
 ) -> Result<StoredParts, String> {
     let stored = stored_shapes(dir)
         .into_iter()
         .find(|s| s.name == name)
         .ok_or_else(|| format!("training shape `{name}` is missing from {}", dir.display()))?;
-    let mesh = read_mesh(&stored.mesh).map_err(|e| e.to_string())?;
-    let labels = read_labels(&stored.labels, mesh.n_vertices())?;
+    let (mesh, _) = read_mesh_limited(&stored.mesh, limits, false).map_err(|e| e.to_string())?;
+    let labels = read_labels(&stored.labels, mesh.n_vertices(), limits)?;
     let spectrum = match cache {
         Some(c) => c.get_or_compute(&mesh, params),
         None => compute_spectrum(&mesh, params),
@@ -209,38 +210,91 @@ fn load_stored(
 /// Reads the newest model of a data folder that loads, with its reference shape, ready to
 /// serve; `Ok(None)` when there is none. Unreadable versions are skipped with a warning.
 pub fn load_live_model(data: &DataDir, heat: HeatParams) -> Result<Option<ModelState>, String> {
-    let (found, problems) = latest_model(&data.models());
+    load_live_model_for(data, heat, &ServeNeeds::default())
+}
+
+/// What a pipeline needs of a model to serve with it.
+#[derive(Clone, Debug, Default)]
+pub struct ServeNeeds {
+    /// Limits every dimension of the model must respect.
+    pub limits: crate::limits::Limits,
+    /// Eigenpairs of the scans' spectra (the model's K must not exceed it).
+    pub spectrum_k: Option<usize>,
+    /// Versions not to use (quarantined after crashing the daemon).
+    pub skip_versions: Vec<u64>,
+}
+
+/// Why a decoded model cannot serve a pipeline with `needs` (before its reference is read).
+fn check_serves(manifest: &ModelManifest, forest: &RandomForest, needs: &ServeNeeds) -> Result<(), String> {
+    if needs.skip_versions.contains(&manifest.version) {
+        return Err("quarantined: it was in use when the daemon crashed twice".into());
+    }
+    if let Some(k) = needs.spectrum_k {
+        if forest.k() > k {
+            return Err(format!(
+                "it uses K = {} eigenpairs, but this pipeline computes spectra with k = {k}",
+                forest.k()
+            ));
+        }
+    }
+    if manifest.n_labels != forest.n_labels() || manifest.k != forest.k() {
+        return Err(format!(
+            "its manifest says {} labels and K = {}, the model file {} and {}",
+            manifest.n_labels,
+            manifest.k,
+            forest.n_labels(),
+            forest.k()
+        ));
+    }
+    Ok(())
+}
+
+/// [`load_live_model`] for a pipeline with `needs`: the newest version that loads within the
+/// limits and can serve (K no larger than the pipeline's spectra, a reference that carries
+/// every label) is used; each newer one skipped is logged with the reason.
+pub fn load_live_model_for(
+    data: &DataDir,
+    heat: HeatParams,
+    needs: &ServeNeeds,
+) -> Result<Option<ModelState>, String> {
+    let cache = SpectrumCache::new(data.cache()).ok();
+    let (found, problems) = newest_model_that(&data.models(), &needs.limits, |manifest, forest| {
+        check_serves(&manifest, &forest, needs)?;
+        let params = SpectrumParams::new(forest.k());
+        let (mesh, labels, spectrum) =
+            load_stored(&data.training(), &manifest.reference, &params, cache.as_ref(), &needs.limits)
+                .map_err(|e| format!("reference: {e}"))?;
+        // The model's own table (format version 2) for its reference; older models had
+        // references that carry every label.
+        let table = match forest.reference().and_then(|r| r.table_for(&mesh)) {
+            Some(t) => t,
+            None => label_table(&labels, forest.n_labels()).map_err(|missing| {
+                format!(
+                    "its reference `{}` lacks {} of its {} labels",
+                    manifest.reference,
+                    missing.len(),
+                    forest.n_labels()
+                )
+            })?,
+        };
+        let reference = PreparedShape::new(mesh, Arc::new(spectrum), heat).map_err(|e| e.to_string())?;
+        Ok(ModelState {
+            version: manifest.version,
+            forest: Arc::new(forest),
+            reference_name: manifest.reference,
+            reference: Arc::new(reference),
+            label_to_vertex: Arc::new(table),
+            training_shapes: manifest.training_shapes,
+        })
+    });
+    let fallback = found.is_some() && !problems.is_empty();
     for p in problems {
         tracing::warn!("skipping a model version: {p}");
     }
-    let Some((manifest, forest)) = found else { return Ok(None) };
-    let cache = SpectrumCache::new(data.cache()).ok();
-    let params = SpectrumParams::new(forest.k());
-    let (mesh, labels, spectrum) =
-        load_stored(&data.training(), &manifest.reference, &params, cache.as_ref())
-            .map_err(|e| format!("model v{}: reference: {e}", manifest.version))?;
-    // The model's own table (format version 2) for its reference; older models had references
-    // that carry every label.
-    let table = match forest.reference().and_then(|r| r.table_for(&mesh)) {
-        Some(t) => t,
-        None => label_table(&labels, forest.n_labels()).map_err(|missing| {
-            format!(
-                "model v{}: reference `{}` lacks {} labels",
-                manifest.version,
-                manifest.reference,
-                missing.len()
-            )
-        })?,
-    };
-    let reference = PreparedShape::new(mesh, Arc::new(spectrum), heat).map_err(|e| e.to_string())?;
-    Ok(Some(ModelState {
-        version: manifest.version,
-        forest: Arc::new(forest),
-        reference_name: manifest.reference,
-        reference: Arc::new(reference),
-        label_to_vertex: Arc::new(table),
-        training_shapes: manifest.training_shapes,
-    }))
+    if let (true, Some(m)) = (fallback, &found) {
+        tracing::warn!("falling back to model v{}, the newest that can serve", m.version);
+    }
+    Ok(found)
 }
 
 /// A reference chosen for a first model: name, prepared shape, label → vertex table.
@@ -260,6 +314,12 @@ pub struct TrainerSink {
     known: HashMap<String, TrainingShape>,
     /// When the last shape arrived.
     last_arrival: Instant,
+    /// Eigenpairs of the spectra it receives (for shapes it reads back from `training/`).
+    spectrum_k: usize,
+    /// The pipeline's shutdown flag: at shutdown, waiting scans are left queued, not rejected.
+    shutdown: Option<crate::pipeline::actor::Shutdown>,
+    /// Limits on label maps read back from `training/`.
+    limits: crate::limits::Limits,
 }
 
 impl TrainerSink {
@@ -282,7 +342,60 @@ impl TrainerSink {
             pending: Vec::new(),
             known: HashMap::new(),
             last_arrival: Instant::now(),
+            spectrum_k: SpectrumParams::default().k,
+            shutdown: None,
+            limits: crate::limits::Limits::default(),
         })
+    }
+
+    /// The eigenpairs of the spectra this trainer receives (the upstream `spectral` stage's K),
+    /// used for shapes read back from `training/` when there is no model yet.
+    pub fn with_spectrum_k(mut self, k: usize) -> Self {
+        self.spectrum_k = k;
+        self
+    }
+
+    /// The pipeline's shutdown flag: a trainer stopped by it does not tell waiting scans that no
+    /// model will come (they stay queued for the next start).
+    pub fn with_shutdown(mut self, shutdown: crate::pipeline::actor::Shutdown) -> Self {
+        self.shutdown = Some(shutdown);
+        self
+    }
+
+    /// Limits on what it reads back.
+    pub fn with_limits(mut self, limits: crate::limits::Limits) -> Self {
+        self.limits = limits;
+        self
+    }
+
+    /// Whether `job` brings a shape under the name of one already in `training/` (learnt, or
+    /// stored and about to be). An identical copy (same mesh, same labels: a re-delivery) is
+    /// `Ok(true)` and is consumed; a different one is refused: training shapes are immutable once
+    /// stored, so a new shape under an old name would silently change what every later map is
+    /// computed against.
+    fn same_name_as_stored(&self, job: &Job, shape: &SpectralShape) -> Result<bool, String> {
+        let dir = self.data.training();
+        if job.source.as_ref().is_some_and(|s| s.starts_with(&dir)) {
+            return Ok(false); // read back from training/ itself
+        }
+        let Some(stored) = stored_shapes(&dir).into_iter().find(|s| s.name == job.name) else {
+            return Ok(false);
+        };
+        let same = read_mesh_limited(&stored.mesh, &self.limits, false).ok().is_some_and(|(m, _)| {
+            m == *shape.shape.mesh
+                && read_labels(&stored.labels, m.n_vertices(), &self.limits)
+                    .ok()
+                    .is_some_and(|l| Some(&l) == shape.shape.labels.as_deref())
+        });
+        if same {
+            return Ok(true);
+        }
+        Err(format!(
+            "a different training shape named `{}` is already stored ({}); training shapes are \
+             immutable once learnt, so this one is not used: give it another name to add it",
+            job.name,
+            stored.mesh.display()
+        ))
     }
 
     /// Stores a pending shape in `training/` (moves a claimed input, writes anything else).
@@ -292,10 +405,9 @@ impl TrainerSink {
         if job.source.as_ref().is_some_and(|s| s.starts_with(&dir)) {
             return Ok(()); // already stored
         }
-        // Drop an older copy of the same name (a crash before its model was saved).
-        for old in stored_shapes(&dir).into_iter().filter(|s| s.name == job.name) {
-            let _ = fs::remove_file(&old.mesh);
-            let _ = fs::remove_file(&old.labels);
+        // Never replace a stored shape (see `same_name_as_stored`, checked before this).
+        if let Some(old) = stored_shapes(&dir).into_iter().find(|s| s.name == job.name) {
+            return Err(format!("{}: a training shape of this name is already stored", old.mesh.display()));
         }
         match (&job.source, &job.labels_file) {
             (Some(src), Some(lab)) if is_claimed(&self.data, job) => {
@@ -304,6 +416,10 @@ impl TrainerSink {
                 let mesh_name = name(src).replacen(&shape_stem(src), &job.name, 1);
                 let lab_ext = lab.extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or_default();
                 move_file(lab, &dir.join(format!("{}.{lab_ext}", job.name))).map_err(|e| e.to_string())?;
+                for c in &job.companions {
+                    let n = name(c).replacen(&shape_stem(c), &job.name, 1);
+                    move_file(c, &dir.join(n)).map_err(|e| e.to_string())?;
+                }
                 move_file(src, &dir.join(mesh_name)).map_err(|e| e.to_string())?;
             }
             _ => {
@@ -333,7 +449,7 @@ impl TrainerSink {
                 continue;
             }
             let (_, labels, spectrum) =
-                load_stored(&self.data.training(), name, &params, self.cache.as_ref())?;
+                load_stored(&self.data.training(), name, &params, self.cache.as_ref(), &self.limits)?;
             self.known.insert(
                 name.clone(),
                 TrainingShape { name: name.clone(), spectrum: Arc::new(spectrum), labels },
@@ -407,15 +523,22 @@ impl TrainerSink {
         let t0 = Instant::now();
         let current = self.live.current();
         let pending = std::mem::take(&mut self.pending);
-        // Shapes the current model already has (re-delivered after a crash): just finish them.
+        // A shape under the name of a stored one: an identical re-delivery is consumed, a
+        // different shape is rejected (never swapped in).
         let mut fresh = Vec::new();
         for (job, shape) in pending {
-            if current.as_ref().is_some_and(|m| m.training_shapes.contains(&job.name)) {
-                tracing::info!(shape = %job.name, "already learnt by the current model");
-                self.store(&job, &shape)?;
-                continue;
+            match self.same_name_as_stored(&job, &shape) {
+                Ok(false) => fresh.push((job, shape)),
+                Ok(true) => {
+                    tracing::info!(shape = %job.name, "an identical copy of a stored training shape: consumed");
+                    if is_claimed(&self.data, &job) {
+                        for f in job.files() {
+                            let _ = fs::remove_file(f);
+                        }
+                    }
+                }
+                Err(why) => reject_or_defer(&self.data, &job, &Failure::bad_input("trainer", why))?,
             }
-            fresh.push((job, shape));
         }
         if fresh.is_empty() {
             return Ok(());
@@ -457,7 +580,7 @@ impl TrainerSink {
             match check {
                 Ok(()) => accepted.push((job, shape, ts)),
                 Err(e) => {
-                    reject(&self.data, &job, &Failure::bad_input("trainer", e))?;
+                    reject_or_defer(&self.data, &job, &Failure::bad_input("trainer", e))?;
                 }
             }
         }
@@ -473,7 +596,7 @@ impl TrainerSink {
                 Err(why) => {
                     // Nothing can be learnt from this set: say so for every shape of it.
                     for (job, _, _) in &accepted {
-                        reject(&self.data, job, &Failure::bad_input("trainer", why.clone()))?;
+                        reject_or_defer(&self.data, job, &Failure::bad_input("trainer", why.clone()))?;
                     }
                     return Ok(());
                 }
@@ -481,8 +604,23 @@ impl TrainerSink {
         };
         let k = current.as_ref().map_or(accepted[0].1.spectrum.k(), |m| m.forest.k());
         self.load_known(k)?;
-        for (job, shape, _) in &accepted {
-            self.store(job, shape)?;
+        // Stored before the fit (a crash during it resumes from training/). A shape that cannot
+        // be stored (a full disk) goes back to labeled/ and is retried later.
+        let mut stored = Vec::with_capacity(accepted.len());
+        for a in accepted {
+            match self.store(&a.0, &a.1) {
+                Ok(()) => {
+                    if let Some(n) = &a.0.arrived_as {
+                        self.data.clear_deferral(crate::pipeline::store::InputKind::Labeled, n);
+                    }
+                    stored.push(a);
+                }
+                Err(e) => defer(&self.data, &a.0, &format!("cannot store it in training/: {e}"))?,
+            }
+        }
+        let accepted = stored;
+        if accepted.is_empty() {
+            return Ok(());
         }
         let mut shapes: Vec<TrainingShape> = self.known.values().cloned().collect();
         shapes.extend(accepted.iter().map(|a| a.2.clone()));
@@ -539,19 +677,27 @@ impl Sink for TrainerSink {
     type In = SpectralShape;
 
     fn start(&mut self) -> Result<(), String> {
-        // Stored shapes the newest model has not learnt (a crash before its save): learn them.
-        let Some(model) = self.live.current() else { return Ok(()) };
-        let missing: Vec<_> = stored_shapes(&self.data.training())
-            .into_iter()
-            .filter(|s| !model.training_shapes.contains(&s.name))
-            .collect();
+        // Stored shapes the newest model has not learnt (a crash before its save, or during the
+        // first training, before any model existed): learn them now.
+        let model = self.live.current();
+        let learnt = |name: &str| model.as_ref().is_some_and(|m| m.training_shapes.iter().any(|n| n == name));
+        let missing: Vec<_> =
+            stored_shapes(&self.data.training()).into_iter().filter(|s| !learnt(&s.name)).collect();
         if missing.is_empty() {
             return Ok(());
         }
-        let params = SpectrumParams::new(model.forest.k());
+        let k = model.as_ref().map_or(self.spectrum_k, |m| m.forest.k());
+        let params = SpectrumParams::new(k);
         for s in missing {
-            tracing::info!(shape = %s.name, "stored training shape not in model v{}: learning it", model.version);
-            match load_stored(&self.data.training(), &s.name, &params, self.cache.as_ref()) {
+            match &model {
+                Some(m) => {
+                    tracing::info!(shape = %s.name, "stored training shape not in model v{}: learning it", m.version)
+                }
+                None => {
+                    tracing::info!(shape = %s.name, "stored training shape and no model yet (training was interrupted): learning it")
+                }
+            }
+            match load_stored(&self.data.training(), &s.name, &params, self.cache.as_ref(), &self.limits) {
                 Ok((mesh, labels, spectrum)) => {
                     let mut job = Job::generated(0, &s.name);
                     job.source = Some(s.mesh.clone());
@@ -566,8 +712,8 @@ impl Sink for TrainerSink {
 
     fn consume(&mut self, job: Job, body: Result<SpectralShape, Failure>) -> Result<(), String> {
         match body {
-            Err(f) => reject(&self.data, &job, &f).map(|_| ()),
-            Ok(shape) if shape.shape.labels.is_none() => reject(
+            Err(f) => reject_or_defer(&self.data, &job, &f),
+            Ok(shape) if shape.shape.labels.is_none() => reject_or_defer(
                 &self.data,
                 &job,
                 &Failure::bad_input("trainer", "the shape has no labels to learn from"),
@@ -599,7 +745,10 @@ impl Sink for TrainerSink {
 
     fn finish(&mut self) -> Result<(), String> {
         let r = self.update();
-        if self.live.current().is_none() {
+        // At a shutdown, scans waiting for a model stay queued (they see the shutdown); only a
+        // pipeline that ran out of input learns that no model will come.
+        let stopping = self.shutdown.as_ref().is_some_and(|s| s.is_triggered());
+        if self.live.current().is_none() && !stopping {
             self.live.close(match &r {
                 Err(e) => format!("training failed: {e}"),
                 Ok(()) => "no labelled shape was accepted for training".to_string(),
