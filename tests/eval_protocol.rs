@@ -194,9 +194,10 @@ fn missing_files_are_named() {
 
 #[test]
 fn wolf_class_from_shared_data() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/tosca");
-    let alt = Path::new("/work/shared/data/tosca");
-    let dir = if dir.join("wolf0.off").is_file() { dir } else { alt.to_path_buf() };
+    let data = std::env::var_os("SHAPEFOREST_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let dir = data.join("tosca");
     if !dir.join("wolf0.off").is_file() {
         println!("SKIPPED: TOSCA wolf meshes not found under ../shared/data/tosca");
         return;

@@ -245,9 +245,10 @@ fn read_off(path: &std::path::Path) -> Option<Mesh> {
 
 #[test]
 fn tosca_wolf_heat_agrees_with_fast_marching() {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/tosca/wolf0.off");
-    let alt = std::path::Path::new("/work/shared/data/tosca/wolf0.off");
-    let Some(wolf) = read_off(&path).or_else(|| read_off(alt)) else {
+    let data = std::env::var_os("SHAPEFOREST_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let Some(wolf) = read_off(&data.join("tosca/wolf0.off")) else {
         eprintln!("SKIPPED tosca_wolf_heat_agrees_with_fast_marching: TOSCA wolf0.off not found under ../shared/data");
         return;
     };

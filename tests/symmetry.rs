@@ -61,10 +61,12 @@ fn derived_symmetry_of_the_creature_matches_its_exact_mirror() {
     assert!(v.involution_within_005 >= 0.9);
 }
 
-/// The shared data folder (`../shared/data` beside the project, or /work/shared/data).
+/// The shared data folder: `SHAPEFOREST_DATA`, else `../shared/data` beside the project.
 fn data_dir() -> Option<std::path::PathBuf> {
-    let here = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
-    [here, std::path::PathBuf::from("/work/shared/data")].into_iter().find(|d| d.join("tosca").is_dir())
+    let dir = std::env::var_os("SHAPEFOREST_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    dir.join("tosca").is_dir().then_some(dir)
 }
 
 fn read_one_based(path: &std::path::Path) -> Vec<usize> {
