@@ -209,7 +209,8 @@ pub fn result_dirs(data: &Path) -> Vec<String> {
     let mut v: Vec<String> = std::fs::read_dir(data.join("matched"))
         .map(|d| {
             d.filter_map(|e| e.ok())
-                .filter(|e| e.path().is_dir())
+                // `.partial-NAME-ID/` is a result being written, not a result.
+                .filter(|e| e.path().is_dir() && !e.file_name().to_string_lossy().starts_with('.'))
                 .map(|e| e.file_name().to_string_lossy().into_owned())
                 .collect()
         })
