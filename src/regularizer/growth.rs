@@ -1,0 +1,218 @@
+//! Anchor growth and the anchor-consistent placement of every vertex (steps 6–7 of the
+//! regulariser): see [`super::AnchorGrowthParams`].
+
+use super::{smoothing::smooth_placement, *};
+
+/// For each test vertex, the candidate reference vertex whose normalised distances to the
+/// anchors best match the vertex's own (weighted L1); `fallback` where there is no candidate
+/// or no anchor.
+pub(super) fn anchor_consistent_map(
+    test_fields: &Mat<f64>,
+    ref_fields: &Mat<f64>,
+    weights: &[f64],
+    posterior: &LabelledPosterior<'_>,
+    fallback: &[usize],
+) -> Vec<usize> {
+    use rayon::prelude::*;
+    let s = weights.len();
+    if s == 0 {
+        return fallback.to_vec();
+    }
+    (0..fallback.len())
+        .into_par_iter()
+        .map(|m| {
+            let mut best = (f64::INFINITY, fallback[m]);
+            posterior.for_each_entry(m, &mut |r, _| {
+                let cost: f64 =
+                    (0..s).map(|j| weights[j] * (test_fields[(m, j)] - ref_fields[(r, j)]).abs()).sum();
+                if cost < best.0 {
+                    best = (cost, r);
+                }
+            });
+            best.1
+        })
+        .collect()
+}
+
+/// Anchor growth (see [`AnchorGrowthParams`]): returns the final map and the number of anchors
+/// of the last round.
+pub(super) fn grow_anchors(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    posterior: &LabelledPosterior<'_>,
+    start: Vec<usize>,
+    p: &AnchorGrowthParams,
+) -> Result<Grown, Error> {
+    let orientation = Orientation::of(test, reference);
+    // Shared by both runs: the samples, their test-side fields, and the reference fields of
+    // the first round's targets (the same in both runs).
+    let samples = farthest_point_sampling_euclidean(&test.mesh, p.samples.min(test.mesh.n_vertices()), None)?;
+    if samples.len() < 3 {
+        let score = orientation.mean_agreement(&start);
+        return Ok(Grown { map: start, anchors: 0, orientation: score, reoriented: false });
+    }
+    let a_fields = test.heat.distances_from_many(&samples)?;
+    let mut first: Vec<usize> = samples.iter().map(|&v| start[v]).collect();
+    first.sort_unstable();
+    first.dedup();
+    let setup =
+        GrowthSetup { first_cols: reference_columns(reference, &first)?, samples, a_fields, orientation };
+    let (map, anchors) = grow_rounds(test, reference, posterior, start.clone(), p, p.orientation, &setup)?;
+    let score = setup.orientation.mean_agreement(&map);
+    if p.reorient <= 0.0 {
+        return Ok(Grown { map, anchors, orientation: score, reoriented: false });
+    }
+    // The second hypothesis: a first round placed with a strong orientation term, which puts
+    // every vertex on the side its orientation descriptor says (undoing a mirror image of the
+    // game's anchors, whole or in part), then the ordinary rounds. The better oriented map wins.
+    let (second, second_anchors) = grow_rounds(test, reference, posterior, start, p, p.reorient, &setup)?;
+    let second_score = setup.orientation.mean_agreement(&second);
+    if second_score > score {
+        Ok(Grown { map: second, anchors: second_anchors, orientation: second_score, reoriented: true })
+    } else {
+        Ok(Grown { map, anchors, orientation: score, reoriented: false })
+    }
+}
+
+/// What both growth runs share.
+struct GrowthSetup {
+    /// Farthest-point samples of the test shape.
+    samples: Vec<usize>,
+    /// Distances from the samples on the test shape (`n_test × samples`, not normalised).
+    a_fields: Mat<f64>,
+    /// Normalised reference distance columns of the first round's targets.
+    first_cols: std::collections::HashMap<usize, Vec<f32>>,
+    /// Orientation descriptors of the test and reference shapes.
+    orientation: Orientation,
+}
+
+/// Normalised (÷ √area) reference distance columns from `targets`, as f32, one block solve.
+fn reference_columns(
+    reference: &PreparedShape,
+    targets: &[usize],
+) -> Result<std::collections::HashMap<usize, Vec<f32>>, Error> {
+    let rs = 1.0 / reference.sqrt_area();
+    let f = reference.heat.distances_from_many(targets)?;
+    Ok(targets
+        .iter()
+        .enumerate()
+        .map(|(j, &t)| (t, f.col(j).iter().map(|&d| (d * rs) as f32).collect()))
+        .collect())
+}
+
+/// What anchor growth returns.
+/// The result of anchor growth.
+pub(super) struct Grown {
+    /// Test vertex → reference vertex.
+    pub(super) map: Vec<usize>,
+    /// Anchors of the last round.
+    pub(super) anchors: usize,
+    /// Mean orientation agreement of the map over all test vertices.
+    pub(super) orientation: f64,
+    /// Whether the map came from the second, strongly oriented run.
+    pub(super) reoriented: bool,
+}
+
+/// The rounds of anchor growth from `start`.
+fn grow_rounds(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    posterior: &LabelledPosterior<'_>,
+    start: Vec<usize>,
+    p: &AnchorGrowthParams,
+    first_orientation: f64,
+    setup: &GrowthSetup,
+) -> Result<(Vec<usize>, usize), Error> {
+    use rayon::prelude::*;
+    let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
+    let GrowthSetup { samples, a_fields, first_cols, orientation } = setup;
+    let s = samples.len();
+    let ts = 1.0 / test.sqrt_area();
+    let a_col = |j: usize| a_fields.col(j);
+    // Reference-side fields, computed once per distinct target and dropped when unused.
+    let mut ref_cols = first_cols.clone();
+    let mut map = start;
+    let n_keep = ((s as f64 * p.keep).ceil() as usize).clamp(3, s);
+    let mut used = 0;
+    for round in 0..p.rounds {
+        let targets: Vec<usize> = samples.iter().map(|&v| map[v]).collect();
+        let mut missing: Vec<usize> = targets.iter().copied().filter(|t| !ref_cols.contains_key(t)).collect();
+        missing.sort_unstable();
+        missing.dedup();
+        if !missing.is_empty() {
+            ref_cols.extend(reference_columns(reference, &missing)?);
+        }
+        ref_cols.retain(|t, _| targets.contains(t));
+        // Consistency of each pair with the others: median distance disagreement.
+        let mut consistency: Vec<(f64, usize)> = (0..s)
+            .into_par_iter()
+            .map(|i| {
+                let ci = &ref_cols[&targets[i]];
+                let mut d: Vec<f64> = (0..s)
+                    .filter(|&j| j != i)
+                    .map(|j| (a_col(i)[samples[j]] * ts - ci[targets[j]] as f64).abs())
+                    .collect();
+                let mid = d.len() / 2;
+                d.select_nth_unstable_by(mid, f64::total_cmp);
+                (d[mid], i)
+            })
+            .collect();
+        consistency.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let kept: Vec<usize> = consistency[..n_keep].iter().map(|c| c.1).collect();
+        let k = kept.len();
+        // Row-major tables: test distances and weights (n_t × k), reference distances (n_r × k).
+        let mut a = vec![0f32; n_t * k];
+        let mut w = vec![0f32; n_t * k];
+        for (j, &i) in kept.iter().enumerate() {
+            let col = a_col(i);
+            for v in 0..n_t {
+                let d = col[v] * ts;
+                a[v * k + j] = d as f32;
+                w[v * k + j] = if p.locality > 0.0 { (-d / p.locality).exp() as f32 } else { 1.0 };
+            }
+        }
+        let mut b = vec![0f32; n_r * k];
+        for (j, &i) in kept.iter().enumerate() {
+            let col = &ref_cols[&targets[i]];
+            for r in 0..n_r {
+                b[r * k + j] = col[r];
+            }
+        }
+        let last = round + 1 == p.rounds;
+        let gamma = if round == 0 { first_orientation } else { p.orientation } as f32;
+        // Each vertex's candidates with their cost (mean locality-weighted disagreement, in
+        // √area units); the cheapest is the new placement. The last round keeps the table for
+        // the smoothing below.
+        let placed: Vec<(usize, Vec<(u32, f32)>)> = (0..n_t)
+            .into_par_iter()
+            .map(|m| {
+                let (am, wm) = (&a[m * k..(m + 1) * k], &w[m * k..(m + 1) * k]);
+                let norm = 1.0 / wm.iter().sum::<f32>().max(f32::MIN_POSITIVE);
+                let mut best = (f32::INFINITY, map[m]);
+                let mut table = Vec::new();
+                posterior.for_each_entry(m, &mut |r, _| {
+                    let br = &b[r * k..(r + 1) * k];
+                    let mut cost: f32 =
+                        am.iter().zip(wm).zip(br).map(|((x, w), y)| w * (x - y).abs()).sum::<f32>() * norm;
+                    if gamma > 0.0 {
+                        cost += gamma * (0.5 * (1.0 - orientation.agreement(m, r))) as f32;
+                    }
+                    if cost < best.0 {
+                        best = (cost, r);
+                    }
+                    if last {
+                        table.push((r as u32, cost));
+                    }
+                });
+                (best.1, table)
+            })
+            .collect();
+        map = placed.iter().map(|p| p.0).collect();
+        if last && p.smoothness > 0.0 && p.smoothing_rounds > 0 {
+            let table: Vec<Vec<(u32, f32)>> = placed.into_iter().map(|p| p.1).collect();
+            map = smooth_placement(&test.mesh, &reference.mesh, reference.sqrt_area(), &table, map, p);
+        }
+        used = k;
+    }
+    Ok((map, used))
+}
