@@ -144,6 +144,10 @@ pub struct EvalArgs {
     /// Normalise a partial scan by its own area instead of the reference's (an ablation).
     #[arg(long)]
     pub own_area: bool,
+    /// Leave the holes of a perturbed scan open (an ablation; by default holes of perimeter up
+    /// to 0.35·√area of the reference are closed before its spectrum is computed).
+    #[arg(long)]
+    pub keep_holes: bool,
     /// Augment every training set with perturbed copies of its shapes: `partial-view`,
     /// `holes:N:R` or `crop:R` (repeatable; --augment-copies copies of each shape per kind).
     #[arg(long, value_name = "KIND", value_parser = parse_augment)]
@@ -589,6 +593,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         skip_baseline: args.no_baseline,
         largest_component: !args.whole_scan,
         partial_scale: !args.own_area,
+        fill_holes: (!args.keep_holes).then_some(0.35),
         augment: args.augment.iter().map(|&p| vec![p]).collect(),
         augment_copies: args.augment_copies,
         ..ProtocolParams::default()

@@ -115,6 +115,10 @@ pub struct ProtocolParams {
     /// Normalise an open, partial scan by the reference's area instead of its own (default
     /// `true`; see [`crate::regularizer::normalising_area`]).
     pub partial_scale: bool,
+    /// Close the holes of a perturbed scan whose perimeter is at most this fraction of the
+    /// reference's `√area` before its spectrum is computed (see [`ScanPart::filled`]); `None`:
+    /// leave them open. Default `Some(0.35)` (a round hole of radius ~0.055·√area).
+    pub fill_holes: Option<f64>,
     /// Training-set augmentation: for every kind (a perturbation list), `augment_copies`
     /// seeded perturbed copies of each training shape join the training set (see
     /// [`crate::forest::augmented_shape`]). Default: none.
@@ -141,6 +145,7 @@ impl Default for ProtocolParams {
             skip_baseline: false,
             largest_component: true,
             partial_scale: true,
+            fill_holes: Some(0.35),
             augment: Vec::new(),
             augment_copies: 4,
         }
@@ -586,13 +591,23 @@ pub fn run_protocol(
         } else {
             ScanPart { mesh: scan_mesh.clone(), kept: None, components: 1 }
         };
-        let part_spectrum = match (&part.kept, &cache) {
-            (None, _) => scan_spectrum,
-            (Some(_), Some(c)) => Arc::new(c.get_or_compute(&part.mesh, &params.spectrum)?),
-            (Some(_), None) => Arc::new(compute_spectrum(&part.mesh, &params.spectrum)?),
+        let ref_area = shapes[reference].mesh.surface_area();
+        let filled = match params.fill_holes {
+            Some(f) if kept.is_some() => part.filled(f * ref_area.sqrt()),
+            _ => None,
         };
-        let (part_spectrum, scale_ratio) = if params.partial_scale && kept.is_some() {
-            let (sp, ratio) = part.normalise((*part_spectrum).clone(), shapes[reference].mesh.surface_area());
+        let spectrum_mesh = filled.clone().unwrap_or_else(|| part.mesh.clone());
+        let part_spectrum = match (&part.kept, &filled, &cache) {
+            (None, None, _) => scan_spectrum,
+            (_, _, Some(c)) => Arc::new(c.get_or_compute(&spectrum_mesh, &params.spectrum)?),
+            (_, _, None) => Arc::new(compute_spectrum(&spectrum_mesh, &params.spectrum)?),
+        };
+        let (part_spectrum, scale_ratio) = if kept.is_some() {
+            let (sp, ratio) = if params.partial_scale {
+                part.spectrum_for_matching(&spectrum_mesh, (*part_spectrum).clone(), ref_area)
+            } else {
+                (part_spectrum.restricted(part.mesh.n_vertices()), 1.0)
+            };
             (Arc::new(sp), ratio)
         } else {
             (part_spectrum, 1.0)

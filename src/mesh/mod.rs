@@ -48,7 +48,9 @@ pub use io::{
 };
 pub use obj::{parse_obj, write_obj};
 pub use off::{parse_off, write_off};
-pub use parts::{extend_map_by_nearest, largest_component, submesh, vertex_components};
+pub use parts::{
+    boundary_loops, extend_map_by_nearest, fill_holes, largest_component, submesh, vertex_components,
+};
 pub use perturb::{perturb, perturbations_name, Perturbation, Perturbed};
 pub use ply::{parse_ply, write_ply, PlyEncoding};
 pub use report::{MeshFormat, MeshReport, MeshWarning};
