@@ -34,7 +34,6 @@ use crate::{
     geodesic::{HeatMethodSolver, HeatParams},
     regularizer::{regularize, regularize_onto, DenseMap, PairParams, PreparedShape, RegularizerParams},
     spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
-    Error,
 };
 
 /// A measured pairwise method.
@@ -221,12 +220,16 @@ pub enum PairsEvent<'a> {
 /// The maps of one pair in [`PairMethod::ALL`] order, and the pair step's seconds.
 type PairMaps = (Vec<usize>, Vec<usize>, Vec<usize>, f64);
 
-fn invalid(msg: String) -> Error {
+fn invalid(msg: String) -> EvalError {
     EvalError::InvalidInput(msg).into()
 }
 
 /// Checks the shapes, the symmetry, the training set and the pairs.
-fn check(shapes: &[ProtocolShape], symmetry: Option<&[usize]>, params: &PairsParams) -> Result<usize, Error> {
+fn check(
+    shapes: &[ProtocolShape],
+    symmetry: Option<&[usize]>,
+    params: &PairsParams,
+) -> Result<usize, EvalError> {
     let n_labels = shapes.first().map_or(0, |s| s.truth.len());
     if n_labels == 0 {
         return Err(invalid("the pairwise protocol needs shapes with ground-truth tables".into()));
@@ -284,7 +287,7 @@ pub fn run_pairs(
     symmetry: Option<&[usize]>,
     params: &PairsParams,
     mut progress: Option<&mut dyn FnMut(PairsEvent<'_>)>,
-) -> Result<PairsReport, Error> {
+) -> Result<PairsReport, EvalError> {
     let n_labels = check(shapes, symmetry, params)?;
     let forest_params = params.forest.clone().check()?;
     let cache = match &params.cache_dir {

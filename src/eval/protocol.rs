@@ -52,7 +52,6 @@ use crate::{
     mesh::Mesh,
     regularizer::{regularize, PreparedShape, RegularizerParams},
     spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
-    Error,
 };
 
 /// One shape of the evaluated class with its ground-truth table.
@@ -329,7 +328,7 @@ fn plan(n_shapes: usize, params: &ProtocolParams) -> Vec<(usize, Vec<usize>)> {
 /// ground-truth points and, with a symmetry map, from their mirror images.
 type PreparedReference = (usize, PreparedShape, Mat<f64>, Option<Mat<f64>>);
 
-fn invalid(msg: String) -> Error {
+fn invalid(msg: String) -> EvalError {
     EvalError::InvalidInput(msg).into()
 }
 
@@ -344,7 +343,7 @@ pub fn run_protocol(
     symmetry: Option<&[usize]>,
     params: &ProtocolParams,
     mut progress: Option<&mut dyn FnMut(ProtocolEvent<'_>)>,
-) -> Result<ProtocolReport, Error> {
+) -> Result<ProtocolReport, EvalError> {
     if shapes.len() < 2 {
         return Err(invalid(format!("the protocol needs at least 2 shapes, got {}", shapes.len())));
     }
@@ -513,7 +512,7 @@ pub fn run_protocol(
 
         let evaluated: Vec<usize> = eval_labels.iter().map(|&k| test_shape.truth[k]).collect();
         let area = ref_prepared.mesh.surface_area();
-        let measure = |method: Method, map: &[usize]| -> Result<MethodErrors, Error> {
+        let measure = |method: Method, map: &[usize]| -> Result<MethodErrors, EvalError> {
             let (strict, _) = geodesic_errors(map, &evaluated, fields.as_ref(), None, area)?;
             let symmetric = match mirror_fields {
                 Some(mf) => {

@@ -22,11 +22,14 @@
 
 use std::{sync::Arc, time::Instant};
 
+mod error;
 mod growth;
 mod orientation;
 mod pair;
 mod smoothing;
 
+pub use error::RegularizerError;
+use error::RegularizerError as Error;
 use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
@@ -42,7 +45,6 @@ use crate::{
     matching::{game_theoretic_matching, Candidate, GameMatcherParams},
     mesh::Mesh,
     spectral::Spectrum,
-    Error,
 };
 
 /// A shape ready for regularisation: mesh, spectrum and a heat-method factorisation.
@@ -59,7 +61,7 @@ impl PreparedShape {
     /// Prepares a shape: factorises the heat-method matrices.
     pub fn new(mesh: Arc<Mesh>, spectrum: Arc<Spectrum>, heat: HeatParams) -> Result<Self, Error> {
         if spectrum.n_vertices != mesh.n_vertices() {
-            return Err(fmap::FmapError::SizeMismatch(format!(
+            return Err(Error::SizeMismatch(format!(
                 "spectrum of {} vertices for a mesh of {}",
                 spectrum.n_vertices,
                 mesh.n_vertices()
@@ -353,11 +355,11 @@ fn check_inputs(
     params.matcher.check()?;
     params.fmap.check()?;
     if let Some(g) = &params.growth {
-        g.check().map_err(|reason| fmap::FmapError::InvalidParameter { name: "growth", reason })?;
+        g.check().map_err(|reason| Error::InvalidParameter { name: "growth", reason })?;
     }
     let n_ref = reference.mesh.n_vertices();
     if prediction.n_vertices() != test.mesh.n_vertices() {
-        return Err(fmap::FmapError::SizeMismatch(format!(
+        return Err(Error::SizeMismatch(format!(
             "prediction for {} vertices, test shape has {}",
             prediction.n_vertices(),
             test.mesh.n_vertices()
@@ -366,14 +368,14 @@ fn check_inputs(
     }
     match label_to_vertex {
         Some(t) if t.len() != prediction.n_labels() || t.iter().any(|&v| v >= n_ref) => {
-            Err(fmap::FmapError::SizeMismatch(format!(
+            Err(Error::SizeMismatch(format!(
                 "label table of {} entries for {} labels and a reference of {n_ref} vertices",
                 t.len(),
                 prediction.n_labels()
             ))
             .into())
         }
-        None if prediction.n_labels() > n_ref => Err(fmap::FmapError::SizeMismatch(format!(
+        None if prediction.n_labels() > n_ref => Err(Error::SizeMismatch(format!(
             "{} labels but the reference has only {n_ref} vertices: give a label → vertex table",
             prediction.n_labels()
         ))
@@ -521,7 +523,7 @@ pub fn dense_map(
     let fmap_predicted = fmap::pullback_fmap(&test.spectrum, &reference.spectrum, kt, kr, &posterior)?;
     let (a_fields, b_fields) = (test_fields, ref_fields);
     if a_fields.ncols() != game.matches.len() || b_fields.nrows() != n_ref {
-        return Err(fmap::FmapError::SizeMismatch("sparse matches of another shape pair".into()).into());
+        return Err(Error::SizeMismatch("sparse matches of another shape pair".into()).into());
     }
     let a = fmap::spectral_coefficients(&test.spectrum, kt, a_fields.as_ref())?;
     let b = fmap::spectral_coefficients(&reference.spectrum, kr, b_fields.as_ref())?;
