@@ -1,12 +1,10 @@
 //! The command-line tool through its binary: the commands a user runs, and their errors.
 
-use std::process::Command;
+mod common;
 
 use shapeforest::{mesh::write_mesh, synth::icosphere};
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_shapeforest"))
-}
+use common::bin;
 
 #[test]
 fn info_summarises_a_mesh_and_names_a_bad_file() {

@@ -2,7 +2,9 @@
 //! per-label `.vts` tables and symmetry from `.sym.vts`, built here from the synthetic creature
 //! family by shuffling each shape's vertices (no shared data needed).
 
-use std::{path::Path, process::Command};
+mod common;
+
+use std::path::Path;
 
 use rand::{seq::SliceRandom, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -11,9 +13,7 @@ use shapeforest::{
     synth::{creature_family, CreatureParams},
 };
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_shapeforest"))
-}
+use common::bin;
 
 fn lines(v: impl Iterator<Item = usize>) -> String {
     v.map(|x| format!("{x}\n")).collect()

@@ -221,7 +221,7 @@ pub enum PairsEvent<'a> {
 type PairMaps = (Vec<usize>, Vec<usize>, Vec<usize>, f64);
 
 fn invalid(msg: String) -> EvalError {
-    EvalError::InvalidInput(msg).into()
+    EvalError::InvalidInput(msg)
 }
 
 /// Checks the shapes, the symmetry, the training set and the pairs.

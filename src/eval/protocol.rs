@@ -329,7 +329,7 @@ fn plan(n_shapes: usize, params: &ProtocolParams) -> Vec<(usize, Vec<usize>)> {
 type PreparedReference = (usize, PreparedShape, Mat<f64>, Option<Mat<f64>>);
 
 fn invalid(msg: String) -> EvalError {
-    EvalError::InvalidInput(msg).into()
+    EvalError::InvalidInput(msg)
 }
 
 /// Runs the protocol (see the module documentation) on `shapes`.

@@ -363,8 +363,7 @@ impl SymmetrySolver {
                 "the spectrum has {} eigenpairs, the symmetry fit needs {}",
                 spectrum.k(),
                 params.k_initial
-            ))
-            .into());
+            )));
         }
         let mut params = params;
         params.k_final = params.k_final.min(spectrum.k());
@@ -373,8 +372,7 @@ impl SymmetrySolver {
                 "spectrum of {} vertices for a mesh of {}",
                 spectrum.n_vertices,
                 mesh.n_vertices()
-            ))
-            .into());
+            )));
         }
         let heat = HeatMethodSolver::new(mesh, HeatParams::default())?;
         let sqrt_area = mesh.surface_area().sqrt();
@@ -469,7 +467,7 @@ impl SymmetrySolver {
         for j in 0..self.orientation.ncols() {
             push(self.orientation.subcols(j, 1), self.orientation.subcols(j, 1), -1.0, ow, &mut w);
         }
-        Ok(solve_rows(a.as_ref(), b.as_ref(), &w, &self.spectrum.eigenvalues[..k0], &self.params)?)
+        solve_rows(a.as_ref(), b.as_ref(), &w, &self.spectrum.eigenvalues[..k0], &self.params)
     }
 
     /// ZoomOut on the samples, from a square functional map `c0` (at most `k_final²`) to
@@ -481,8 +479,7 @@ impl SymmetrySolver {
                 "ZoomOut starts from a square map of at most {kf}², got {}×{}",
                 c0.nrows(),
                 c0.ncols()
-            ))
-            .into());
+            )));
         }
         let ns = self.samples.len();
         // Gram matrix of the sampled basis; its leading blocks serve every k.
@@ -533,14 +530,11 @@ impl SymmetrySolver {
                 c.nrows(),
                 c.ncols(),
                 self.spectrum.k()
-            ))
-            .into());
+            )));
         }
         let n = self.spectrum.n_vertices;
         if let Some(&v) = vertices.iter().find(|&&v| v >= n) {
-            return Err(
-                EvalError::InvalidInput(format!("vertex {v} is outside the shape's {n} vertices")).into()
-            );
+            return Err(EvalError::InvalidInput(format!("vertex {v} is outside the shape's {n} vertices")));
         }
         let phi = self.spectrum.vectors().subcols(0, k);
         let rows = Mat::from_fn(vertices.len(), k, |i, j| phi[(vertices[i], j)]);
@@ -572,8 +566,7 @@ impl SymmetrySolver {
             return Err(EvalError::SizeMismatch(format!(
                 "a symmetry map of {} entries for a shape of {n} vertices",
                 derived.map.len()
-            ))
-            .into());
+            )));
         }
         let folds = n_folds.clamp(2, features.pairs.len().max(2));
         let mut held_out = Vec::new();
@@ -585,8 +578,7 @@ impl SymmetrySolver {
             if kept.pairs.is_empty() {
                 return Err(EvalError::InvalidInput(
                     "too few feature pairs to hold some out (need at least 2)".into(),
-                )
-                .into());
+                ));
             }
             let c = self.fit(&kept)?;
             let pts = out.points();

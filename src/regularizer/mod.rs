@@ -65,8 +65,7 @@ impl PreparedShape {
                 "spectrum of {} vertices for a mesh of {}",
                 spectrum.n_vertices,
                 mesh.n_vertices()
-            ))
-            .into());
+            )));
         }
         let heat = HeatMethodSolver::new(&mesh, heat)?;
         Ok(Self { mesh, spectrum, heat })
@@ -363,8 +362,7 @@ fn check_inputs(
             "prediction for {} vertices, test shape has {}",
             prediction.n_vertices(),
             test.mesh.n_vertices()
-        ))
-        .into());
+        )));
     }
     match label_to_vertex {
         Some(t) if t.len() != prediction.n_labels() || t.iter().any(|&v| v >= n_ref) => {
@@ -372,14 +370,12 @@ fn check_inputs(
                 "label table of {} entries for {} labels and a reference of {n_ref} vertices",
                 t.len(),
                 prediction.n_labels()
-            ))
-            .into())
+            )))
         }
         None if prediction.n_labels() > n_ref => Err(Error::SizeMismatch(format!(
             "{} labels but the reference has only {n_ref} vertices: give a label → vertex table",
             prediction.n_labels()
-        ))
-        .into()),
+        ))),
         _ => Ok(()),
     }
 }
@@ -523,7 +519,7 @@ pub fn dense_map(
     let fmap_predicted = fmap::pullback_fmap(&test.spectrum, &reference.spectrum, kt, kr, &posterior)?;
     let (a_fields, b_fields) = (test_fields, ref_fields);
     if a_fields.ncols() != game.matches.len() || b_fields.nrows() != n_ref {
-        return Err(Error::SizeMismatch("sparse matches of another shape pair".into()).into());
+        return Err(Error::SizeMismatch("sparse matches of another shape pair".into()));
     }
     let a = fmap::spectral_coefficients(&test.spectrum, kt, a_fields.as_ref())?;
     let b = fmap::spectral_coefficients(&reference.spectrum, kr, b_fields.as_ref())?;

@@ -8,10 +8,37 @@ use serde::Deserialize;
 use crate::{
     pipeline::{
         actor::Stage,
+        config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+        error::Error,
         message::{Failure, Job, Shape, SpectralShape},
     },
     spectral::{compute_spectrum, SpectrumCache, SpectrumParams},
 };
+
+/// The `spectral` stage type.
+pub(super) const TYPE: StageType = StageType {
+    name: "spectral",
+    ports: (Some(PortType::Shape), Some(PortType::Spectrum)),
+    parse: parse_config::<SpectralConfig>,
+};
+
+impl StageConfig for SpectralConfig {
+    fn type_name(&self) -> &'static str {
+        TYPE.name
+    }
+    fn ports(&self) -> Ports {
+        TYPE.ports
+    }
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
+        let Some(AnyPort::Shape(i)) = input else { return Err(b.wrong_input()) };
+        let stage = SpectralStage::new(self, Some(b.data.cache())).map_err(|e| b.error(e))?;
+        let name = b.stage.name.clone();
+        Ok(Some(AnyPort::Spectrum(b.pipeline.stage(&name, i, stage))))
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
 
 /// Settings of `spectral`.
 #[derive(Clone, Debug, Deserialize)]
@@ -46,11 +73,11 @@ pub struct SpectralStage {
 
 impl SpectralStage {
     /// A spectral stage; `cache_dir` is used when given.
-    pub fn new(config: &SpectralConfig, cache_dir: Option<PathBuf>) -> Result<Self, String> {
+    pub fn new(config: &SpectralConfig, cache_dir: Option<PathBuf>) -> Result<Self, Error> {
         let params = SpectrumParams::new(config.k);
-        params.check().map_err(|e| e.to_string())?;
+        params.check()?;
         let cache = match cache_dir {
-            Some(d) if config.cache => Some(SpectrumCache::new(d).map_err(|e| e.to_string())?),
+            Some(d) if config.cache => Some(SpectrumCache::new(d)?),
             _ => None,
         };
         Ok(Self { params, cache })

@@ -1,5 +1,5 @@
 //! `match-sink`: writes each matched scan's outputs, commits claimed inputs beside them, and
-//! rejects failed inputs with a report. Also the rejection helper other sinks share.
+//! rejects failed inputs with a report.
 
 use std::{fmt::Write as _, fs, path::PathBuf};
 
@@ -10,10 +10,40 @@ use crate::{
     mesh::{coordinate_colors, write_colored_ply},
     pipeline::{
         actor::Sink,
-        message::{Failure, FailureKind, Job, MatchedShape},
-        store::{atomic_write, move_file, unique_path, DataDir, InputKind},
+        config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+        error::{Error, IoAt},
+        message::{Failure, Job, MatchedShape},
+        store::{defer, is_claimed, move_file, reject_or_defer, unique_path, unix_now, DataDir, InputKind},
     },
 };
+
+/// The `match-sink` stage type.
+pub(super) const TYPE: StageType = StageType {
+    name: "match-sink",
+    ports: (Some(PortType::Map), None),
+    parse: parse_config::<MatchSinkConfig>,
+};
+
+impl StageConfig for MatchSinkConfig {
+    fn type_name(&self) -> &'static str {
+        TYPE.name
+    }
+    fn ports(&self) -> Ports {
+        TYPE.ports
+    }
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
+        let Some(AnyPort::Map(i)) = input else { return Err(b.wrong_input()) };
+        let mut c = self.clone();
+        c.folder = b.resolve(&c.folder);
+        let name = b.stage.name.clone();
+        let sink = MatchSink::new(b.data.clone(), c);
+        b.pipeline.sink(&name, i, sink);
+        Ok(None)
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
 
 /// Settings of `match-sink`.
 #[derive(Clone, Debug, Deserialize)]
@@ -34,95 +64,6 @@ fn default_true() -> bool {
     true
 }
 
-/// Whether a job's input was claimed into the data folder's `.inflight/` (by a watcher).
-pub fn is_claimed(data: &DataDir, job: &Job) -> bool {
-    job.source.as_ref().is_some_and(|s| {
-        s.starts_with(data.inflight(InputKind::Scan)) || s.starts_with(data.inflight(InputKind::Labeled))
-    })
-}
-
-/// Handles a failed job: an interrupted one is left claimed (it is taken up again at the next
-/// start); any other has its report written to `rejected/NAME.error.json` first, then its
-/// claimed files (input, label map, companions) move to `rejected/` beside it — so an input is
-/// never in `rejected/` without its report. An input named like a report (`*.error.json`)
-/// gets `.input` appended, so that it cannot pass for one. Returns the report's path.
-pub fn reject(data: &DataDir, job: &Job, failure: &Failure) -> Result<Option<PathBuf>, String> {
-    if failure.kind == FailureKind::Interrupted {
-        tracing::info!(job = job.id, shape = %escape_name(&job.name), "interrupted; the input is taken up again at the next start");
-        return Ok(None);
-    }
-    let dir = data.rejected();
-    fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    let mut moves = Vec::new();
-    if is_claimed(data, job) {
-        for f in job.files() {
-            if fs::symlink_metadata(f).is_err() {
-                continue;
-            }
-            let mut name = f.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            if name.to_ascii_lowercase().ends_with(".error.json") {
-                name.push_str(".input");
-            }
-            let target = unique_path(&dir, &name);
-            moves.push((f.clone(), target));
-        }
-    }
-    let report = serde_json::json!({
-        "job": job.id,
-        "input": job.arrived_as.clone().unwrap_or_else(|| job.display_source()),
-        "stage": failure.stage,
-        "kind": format!("{:?}", failure.kind),
-        "error": failure.message,
-        "moved_to": moves.iter().map(|m| m.1.display().to_string()).collect::<Vec<_>>(),
-        "rejected_unix": unix_now(),
-    });
-    let path = unique_path(&dir, &format!("{}.error.json", job.name));
-    let text = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())? + "\n";
-    atomic_write(&path, text.as_bytes()).map_err(|e| e.to_string())?;
-    for (from, to) in &moves {
-        move_file(from, to).map_err(|e| e.to_string())?;
-    }
-    tracing::warn!(job = job.id, shape = %escape_name(&job.name), report = %path.display(), "rejected: {failure}");
-    Ok(Some(path))
-}
-
-/// [`reject`], and when the report cannot be written (a full disk, a read-only folder) the
-/// input is deferred instead: it goes back to its arrivals folder and is retried after a
-/// back-off. Bad input is never lost because the disk was full.
-pub fn reject_or_defer(data: &DataDir, job: &Job, failure: &Failure) -> Result<(), String> {
-    match reject(data, job, failure) {
-        Ok(_) => Ok(()),
-        Err(e) => defer(data, job, &format!("cannot write its rejection report: {e}")),
-    }
-}
-
-/// Puts a claimed job's input back into its arrivals folder for a later retry (see
-/// [`DataDir::defer`]), logging the cause. Unclaimed inputs (batch runs read in place) are left
-/// where they are.
-pub fn defer(data: &DataDir, job: &Job, cause: &str) -> Result<(), String> {
-    let Some(src) = job.source.as_ref().filter(|_| is_claimed(data, job)) else {
-        return Err(cause.to_string());
-    };
-    let kind =
-        if src.starts_with(data.inflight(InputKind::Scan)) { InputKind::Scan } else { InputKind::Labeled };
-    let companions: Vec<PathBuf> = job.labels_file.iter().chain(job.companions.iter()).cloned().collect();
-    match data.defer(kind, src, &companions) {
-        Ok((back, delay)) => {
-            tracing::warn!(
-                job = job.id,
-                shape = %escape_name(&job.name),
-                "{cause}; the input stays queued as {} and is retried in {} s",
-                back.display(),
-                delay.as_secs()
-            );
-            Ok(())
-        }
-        Err(e) => {
-            Err(format!("{cause}; and it could not be put back ({e}): it is taken up at the next start"))
-        }
-    }
-}
-
 /// A documented test hook for output failures: while the file named by the environment
 /// variable `SHAPEFOREST_FAULT_FILE` exists, writing a result fails with the error that file
 /// names (`ENOSPC`: no space left; `EROFS`: read-only file system). Used by the fault-injection
@@ -133,11 +74,6 @@ fn injected_fault() -> Option<std::io::Error> {
     let what = fs::read_to_string(path).ok()?;
     let code = if what.trim() == "EROFS" { libc::EROFS } else { libc::ENOSPC };
     Some(std::io::Error::from_raw_os_error(code))
-}
-
-/// Seconds since the Unix epoch.
-pub fn unix_now() -> u64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs())
 }
 
 /// Writes matched scans into a folder, one sub-folder per scan.
@@ -160,7 +96,7 @@ impl MatchSink {
 
     /// Writes a result, and on failure leaves nothing behind: the partial folder is removed and
     /// a claimed input that had moved into it goes back to `.inflight/`.
-    fn write(&mut self, job: &Job, m: &MatchedShape) -> Result<PathBuf, String> {
+    fn write(&mut self, job: &Job, m: &MatchedShape) -> Result<PathBuf, Error> {
         let partial = self.config.folder.join(format!(".partial-{}-{}", job.name, job.id));
         let r = self.write_parts(job, m, &partial);
         if r.is_err() {
@@ -180,18 +116,18 @@ impl MatchSink {
         job: &Job,
         m: &MatchedShape,
         partial: &std::path::Path,
-    ) -> Result<PathBuf, String> {
+    ) -> Result<PathBuf, Error> {
         let root = &self.config.folder;
         if let Some(e) = injected_fault() {
-            return Err(format!("{}: {e} (SHAPEFOREST_FAULT_FILE)", root.display()));
+            return Err(Error::BadInput(format!("{}: {e} (SHAPEFOREST_FAULT_FILE)", root.display())));
         }
-        fs::create_dir_all(root).map_err(|e| format!("{}: {e}", root.display()))?;
+        fs::create_dir_all(root).at(root)?;
         let name = &job.name;
         let partial = partial.to_path_buf();
         if partial.exists() {
-            fs::remove_dir_all(&partial).map_err(|e| format!("{}: {e}", partial.display()))?;
+            fs::remove_dir_all(&partial).at(&partial)?;
         }
-        fs::create_dir_all(&partial).map_err(|e| format!("{}: {e}", partial.display()))?;
+        fs::create_dir_all(&partial).at(&partial)?;
         let model = &m.predicted.model;
         let dense = &m.dense;
         let mesh = &m.predicted.shape.shape.mesh;
@@ -206,18 +142,17 @@ impl MatchSink {
             let _ = writeln!(text, "{r}");
         }
         let map_file = format!("{name}.map.txt");
-        fs::write(partial.join(&map_file), text)
-            .map_err(|e| format!("{}: {e}", partial.join(&map_file).display()))?;
+        fs::write(partial.join(&map_file), text).at(&partial.join(&map_file))?;
         if self.config.colored {
             let ref_mesh = &model.reference.mesh;
             let ref_colors = coordinate_colors(ref_mesh);
             let scan_colors: Vec<[u8; 3]> = dense.map.iter().map(|&r| ref_colors[r]).collect();
-            write_colored_ply(partial.join(format!("{name}.colored.ply")), mesh, &scan_colors)
-                .map_err(|e| e.to_string())?;
-            crate::viz::write_snapshot(&partial.join(format!("{name}.png")), mesh, ref_mesh, &dense.map)?;
+            write_colored_ply(partial.join(format!("{name}.colored.ply")), mesh, &scan_colors)?;
+            crate::viz::write_snapshot(&partial.join(format!("{name}.png")), mesh, ref_mesh, &dense.map)
+                .map_err(Error::BadInput)?;
             let ref_path = root.join(format!("reference-{}.colored.ply", model.reference_name));
             if !ref_path.exists() {
-                write_colored_ply(&ref_path, ref_mesh, &ref_colors).map_err(|e| e.to_string())?;
+                write_colored_ply(&ref_path, ref_mesh, &ref_colors)?;
             }
         }
         let latency = job.started.elapsed().as_secs_f64();
@@ -243,24 +178,24 @@ impl MatchSink {
             "latency_s": latency,
             "finished_unix": unix_now(),
         });
-        let text = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())? + "\n";
+        let text = serde_json::to_string_pretty(&report)? + "\n";
         let report_path = partial.join(format!("{name}.report.json"));
-        fs::write(&report_path, text).map_err(|e| format!("{}: {e}", report_path.display()))?;
+        fs::write(&report_path, text).at(&report_path)?;
         // Commit: the claimed input moves in beside its result, then the folder gets its name.
         if is_claimed(&self.data, job) {
             if let (Some(src), Some(arrived)) = (&job.source, &job.arrived_as) {
                 let marker = partial.join(".input");
-                fs::write(&marker, arrived).map_err(|e| format!("{}: {e}", marker.display()))?;
+                fs::write(&marker, arrived).at(&marker)?;
                 for c in &job.companions {
                     if let Some(n) = c.file_name() {
-                        move_file(c, &partial.join(n)).map_err(|e| e.to_string())?;
+                        move_file(c, &partial.join(n))?;
                     }
                 }
-                move_file(src, &partial.join(arrived)).map_err(|e| e.to_string())?;
+                move_file(src, &partial.join(arrived))?;
             }
         }
         let target = unique_path(root, name);
-        fs::rename(&partial, &target).map_err(|e| format!("{}: {e}", target.display()))?;
+        fs::rename(&partial, &target).at(&target)?;
         if let Some(arrived) = &job.arrived_as {
             self.data.clear_deferral(InputKind::Scan, arrived);
         }
@@ -278,7 +213,7 @@ impl MatchSink {
 impl Sink for MatchSink {
     type In = MatchedShape;
 
-    fn consume(&mut self, job: Job, body: Result<MatchedShape, Failure>) -> Result<(), String> {
+    fn consume(&mut self, job: Job, body: Result<MatchedShape, Failure>) -> Result<(), Error> {
         match body {
             Ok(m) => match self.write(&job, &m) {
                 Ok(p) => {
