@@ -47,14 +47,10 @@ pub fn mesh_files(dir: &Path, prefix: &str) -> Result<Vec<PathBuf>> {
     Ok(out)
 }
 
-/// Short display name of a mesh file: the file name without mesh extensions.
+/// Short display name of a mesh file: the file name without mesh extensions (the one stem
+/// rule, [`shapeforest::pipeline::shape_stem`]).
 pub fn shape_name(path: &Path) -> String {
-    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("shape");
-    let name = name.strip_suffix(".gz").unwrap_or(name);
-    match name.rsplit_once('.') {
-        Some((stem, _)) if !stem.is_empty() => stem.to_string(),
-        _ => name.to_string(),
-    }
+    shapeforest::pipeline::shape_stem(path)
 }
 
 /// Reads a mesh, logging the reader's warnings.
