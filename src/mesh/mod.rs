@@ -33,6 +33,7 @@ mod error;
 mod io;
 mod obj;
 mod off;
+mod perturb;
 mod ply;
 mod report;
 mod summary;
@@ -46,6 +47,7 @@ pub use io::{
 };
 pub use obj::{parse_obj, write_obj};
 pub use off::{parse_off, write_off};
+pub use perturb::{perturb, perturbations_name, Perturbation, Perturbed};
 pub use ply::{parse_ply, write_ply, PlyEncoding};
 pub use report::{MeshFormat, MeshReport, MeshWarning};
 pub use summary::{is_zero_area, ComponentSize, MeshSummary};
