@@ -3,7 +3,8 @@
 //! `confidence-colors` takes dense maps and passes them on unchanged, writing each shape
 //! coloured by the forest's confidence (blue = sure, red = unsure) as a PLY on the way. Adding
 //! it takes three things, all below: its settings (`ConfidenceColorsConfig`, serde), the running
-//! stage (`ConfidenceColors`, a [`Stage`]), and its registration (`TYPE`, a [`StageType`]).
+//! stage (`ConfidenceColors`, a [`Stage`]), and its registration (`TYPE`, a [`StageType`], inside
+//! the config's [`StageConfig`] impl).
 //! The pipeline file then uses it like a built-in type, and the `fmap` output feeds two
 //! consumers (fan-out): the new stage and the evaluation sink behind it, and a second
 //! evaluation sink straight from `fmap`, so both see every job.
@@ -23,8 +24,8 @@ use shapeforest::{
     mesh::write_colored_ply,
     pipeline::{
         self, build, parse_config, AnyPort, Builder, DataDir, Failure, FailureKind, Job, LiveModel,
-        MatchedShape, PipelineContext, PipelineSpec, PortType, Ports, Registry, RunOptions, Stage,
-        StageConfig, StageType,
+        MatchedShape, PipelineContext, PipelineSpec, PortType, Registry, RunOptions, Stage, StageConfig,
+        StageType,
     },
 };
 
@@ -36,21 +37,14 @@ struct ConfidenceColorsConfig {
     folder: PathBuf,
 }
 
-/// The type's registration: its name in pipeline files, what it consumes and emits, and how its
-/// settings are read (serde, then [`StageConfig::check`]).
-const TYPE: StageType = StageType {
-    name: "confidence-colors",
-    ports: (Some(PortType::Map), Some(PortType::Map)),
-    parse: parse_config::<ConfidenceColorsConfig>,
-};
-
 impl StageConfig for ConfidenceColorsConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    /// The type's registration: its name in pipeline files, what it consumes and emits, and how
+    /// its settings are read (serde, then [`StageConfig::check`]).
+    const TYPE: StageType = StageType {
+        name: "confidence-colors",
+        ports: (Some(PortType::Map), Some(PortType::Map)),
+        parse: parse_config::<ConfidenceColorsConfig>,
+    };
     fn check(&self) -> Result<(), String> {
         match self.folder.as_os_str().is_empty() {
             true => Err("folder must not be empty".into()),
@@ -63,9 +57,6 @@ impl StageConfig for ConfidenceColorsConfig {
         std::fs::create_dir_all(&dir).map_err(|e| pipeline::Error::io(&dir, e))?;
         let name = b.name().to_string();
         Ok(Some(AnyPort::Map(b.pipeline.stage(&name, maps, ConfidenceColors { dir }))))
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 
@@ -177,7 +168,7 @@ folder = "eval-fmap"
 fn main() -> Result<()> {
     let out = PathBuf::from(std::env::args().nth(1).unwrap_or_else(|| "shapeforest-custom".into()));
     std::fs::create_dir_all(&out)?;
-    let registry = Registry::builtin().with(TYPE);
+    let registry = Registry::builtin().with(ConfidenceColorsConfig::TYPE);
     let spec = PipelineSpec::from_toml_with(PIPELINE, "custom pipeline", &registry)?;
     let data = DataDir::new(&out);
     let live = Arc::new(LiveModel::new());

@@ -236,43 +236,20 @@ fn an_output_feeds_every_consumer_attached_to_it() {
 
 #[test]
 fn a_pipeline_file_may_fan_an_output_out_to_several_stages() {
+    // `spectra` feeds the trainer and the descriptor; `fmap` feeds two sinks.
     let text = r#"
 name = "fan-out"
-[[stage]]
-name = "shapes"
-type = "synthetic"
-[[stage]]
-name = "spectra"
-type = "spectral"
-input = "shapes"
-[[stage]]
-name = "trainer"
-type = "trainer"
-input = "spectra"
-[[stage]]
-name = "descriptor"
-type = "descriptor"
-input = "spectra"
-[[stage]]
-name = "forest"
-type = "forest"
-input = "descriptor"
-[[stage]]
-name = "matcher"
-type = "matcher"
-input = "forest"
-[[stage]]
-name = "fmap"
-type = "fmap"
-input = "matcher"
-[[stage]]
-name = "results"
-type = "match-sink"
-input = "fmap"
-[[stage]]
-name = "scores"
-type = "eval-sink"
-input = "fmap"
+stage = [
+    { name = "shapes", type = "synthetic" },
+    { name = "spectra", type = "spectral", input = "shapes" },
+    { name = "trainer", type = "trainer", input = "spectra" },
+    { name = "descriptor", type = "descriptor", input = "spectra" },
+    { name = "forest", type = "forest", input = "descriptor" },
+    { name = "matcher", type = "matcher", input = "forest" },
+    { name = "fmap", type = "fmap", input = "matcher" },
+    { name = "results", type = "match-sink", input = "fmap" },
+    { name = "scores", type = "eval-sink", input = "fmap" },
+]
 "#;
     let spec = PipelineSpec::from_toml(text, "fan-out.toml").unwrap();
     assert_eq!(spec.stages.len(), 9);

@@ -118,22 +118,47 @@ pub enum AnyPort {
 }
 
 /// The settings of one stage type, as read from a pipeline file: implemented once per type
-/// (in `stages/<type>.rs`), registered with a [`StageType`].
-pub trait StageConfig: Any + fmt::Debug + Send + Sync {
-    /// The type's name in pipeline files (`type = "…"`).
-    fn type_name(&self) -> &'static str;
-    /// What it consumes and emits.
-    fn ports(&self) -> Ports;
+/// (in `stages/<type>.rs`), with the type's registration as `TYPE`.
+pub trait StageConfig: Any + fmt::Debug + Send + Sync + Sized {
+    /// The type's name, ports and parser (listed in [`super::stages::builtin`] or given to
+    /// [`Registry::with`]).
+    const TYPE: StageType;
     /// Checks the settings beyond their syntax, naming the broken rule.
     fn check(&self) -> Result<(), String> {
         Ok(())
     }
     /// Adds the stage to the pipeline under construction; `input` is the upstream's output
-    /// (`None` for a source), of the type [`StageConfig::ports`] says. Returns its output
-    /// (`None` for a sink).
+    /// (`None` for a source), of the type `TYPE.ports` says. Returns its output (`None` for a
+    /// sink).
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error>;
+}
+
+/// A [`StageConfig`] behind a pointer, as a [`StageSpec`] holds it (implemented for every
+/// `StageConfig`).
+pub trait AnyStageConfig: Any + fmt::Debug + Send + Sync {
+    /// The type's name in pipeline files (`type = "…"`).
+    fn type_name(&self) -> &'static str;
+    /// What it consumes and emits.
+    fn ports(&self) -> Ports;
+    /// See [`StageConfig::build`].
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error>;
     /// For downcasting ([`StageSpec::config`]).
     fn as_any(&self) -> &dyn Any;
+}
+
+impl<C: StageConfig> AnyStageConfig for C {
+    fn type_name(&self) -> &'static str {
+        C::TYPE.name
+    }
+    fn ports(&self) -> Ports {
+        C::TYPE.ports
+    }
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
+        StageConfig::build(self, b, input)
+    }
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
 }
 
 /// A stage type: its name, ports and how its settings are parsed. Each `stages/<type>.rs`
@@ -145,7 +170,7 @@ pub struct StageType {
     /// What it consumes and emits.
     pub ports: Ports,
     /// Parses and checks the settings (the stage table without `name`, `type`, `input`).
-    pub parse: fn(toml::Table) -> Result<Arc<dyn StageConfig>, String>,
+    pub parse: fn(toml::Table) -> Result<Arc<dyn AnyStageConfig>, String>,
 }
 
 impl fmt::Debug for StageType {
@@ -158,7 +183,7 @@ impl fmt::Debug for StageType {
 /// checks them: the `parse` of most [`StageType`]s.
 pub fn parse_config<C: StageConfig + DeserializeOwned>(
     rest: toml::Table,
-) -> Result<Arc<dyn StageConfig>, String> {
+) -> Result<Arc<dyn AnyStageConfig>, String> {
     let c: C = toml::Value::Table(rest).try_into::<C>().map_err(|e| e.message().to_string())?;
     c.check()?;
     Ok(Arc::new(c))
@@ -208,7 +233,7 @@ pub struct StageSpec {
     /// The stage it consumes (none for sources).
     pub input: Option<String>,
     /// Type and settings.
-    pub config: Arc<dyn StageConfig>,
+    pub config: Arc<dyn AnyStageConfig>,
 }
 
 impl StageSpec {

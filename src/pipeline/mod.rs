@@ -40,8 +40,8 @@ pub mod transport;
 
 pub use actor::{Emitter, PipelineContext, Sink, Source, Stage, StageMetrics, StageSummary};
 pub use config::{
-    build, parse_config, AnyPort, Builder, ConfigError, PipelineSpec, PortType, Ports, Registry, Settings,
-    StageConfig, StageSpec, StageType,
+    build, parse_config, AnyPort, AnyStageConfig, Builder, ConfigError, PipelineSpec, PortType, Ports,
+    Registry, Settings, StageConfig, StageSpec, StageType,
 };
 pub use daemon::{bootstrap_synthetic, prepare, run_pipeline, run_spec, RunSetup};
 pub use error::Error;

@@ -9,16 +9,12 @@ use serde::Deserialize;
 
 use crate::pipeline::{
     actor::Stage,
-    config::{AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+    config::{AnyPort, AnyStageConfig, Builder, PortType, StageConfig, StageType},
     error::Error,
     message::{DescribedShape, Failure, FailureKind, Job, SpectralShape},
     model::{LiveModel, NoModel},
     shutdown::Shutdown,
 };
-
-/// The `descriptor` stage type.
-pub(super) const TYPE: StageType =
-    StageType { name: "descriptor", ports: (Some(PortType::Spectrum), Some(PortType::Descriptor)), parse };
 
 /// Settings of `descriptor` (none yet: the model fixes K and the energies).
 #[derive(Clone, Debug, Default, Deserialize)]
@@ -26,7 +22,7 @@ pub(super) const TYPE: StageType =
 pub struct DescriptorConfig {}
 
 /// Parses the settings of a stage type that takes none.
-fn parse(rest: toml::Table) -> Result<Arc<dyn StageConfig>, String> {
+fn parse(rest: toml::Table) -> Result<Arc<dyn AnyStageConfig>, String> {
     match rest.keys().next() {
         Some(k) => Err(format!("unknown key `{k}` (this stage type takes no settings)")),
         None => Ok(Arc::new(DescriptorConfig::default())),
@@ -34,20 +30,16 @@ fn parse(rest: toml::Table) -> Result<Arc<dyn StageConfig>, String> {
 }
 
 impl StageConfig for DescriptorConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType = StageType {
+        name: "descriptor",
+        ports: (Some(PortType::Spectrum), Some(PortType::Descriptor)),
+        parse,
+    };
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
         let Some(AnyPort::Spectrum(i)) = input else { return Err(b.wrong_input()) };
         let stage = DescriptorStage::new(b.live.clone(), b.pipeline.context().shutdown.clone());
         let name = b.stage.name.clone();
         Ok(Some(AnyPort::Descriptor(b.pipeline.stage(&name, i, stage))))
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 

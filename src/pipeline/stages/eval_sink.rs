@@ -12,27 +12,19 @@ use crate::{
     eval::{cumulative_curve, geodesic_errors, plot_curves_svg, write_curves_csv, CurveSeries, ErrorSummary},
     pipeline::{
         actor::{PipelineContext, Sink},
-        config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
         error::{Error, IoAt},
         message::{Failure, Job, MatchedShape},
         store::{reject, DataDir},
     },
 };
 
-/// The `eval-sink` stage type.
-pub(super) const TYPE: StageType = StageType {
-    name: "eval-sink",
-    ports: (Some(PortType::Map), None),
-    parse: parse_config::<EvalSinkConfig>,
-};
-
 impl StageConfig for EvalSinkConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType = StageType {
+        name: "eval-sink",
+        ports: (Some(PortType::Map), None),
+        parse: parse_config::<EvalSinkConfig>,
+    };
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
         let Some(AnyPort::Map(i)) = input else { return Err(b.wrong_input()) };
         let mut c = self.clone();
@@ -41,9 +33,6 @@ impl StageConfig for EvalSinkConfig {
         let sink = EvalSink::new(b.data.clone(), c).with_context(b.pipeline.context().clone());
         b.pipeline.sink(&name, i, sink);
         Ok(None)
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 

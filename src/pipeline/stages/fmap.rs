@@ -9,27 +9,19 @@ use super::matcher::{check_regularizer, internal, regularizer_params, MatcherCon
 use crate::{
     pipeline::{
         actor::Stage,
-        config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
         error::Error,
         message::{Failure, Job, MatchedShape, SparselyMatched},
     },
     regularizer::{dense_map, AnchorGrowthParams, RegularizerParams},
 };
 
-/// The `fmap` stage type.
-pub(super) const TYPE: StageType = StageType {
-    name: "fmap",
-    ports: (Some(PortType::Matches), Some(PortType::Map)),
-    parse: parse_config::<FmapConfig>,
-};
-
 impl StageConfig for FmapConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType = StageType {
+        name: "fmap",
+        ports: (Some(PortType::Matches), Some(PortType::Map)),
+        parse: parse_config::<FmapConfig>,
+    };
     fn check(&self) -> Result<(), String> {
         check_regularizer(&regularizer_params(&MatcherConfig::default(), self))
     }
@@ -37,9 +29,6 @@ impl StageConfig for FmapConfig {
         let Some(AnyPort::Matches(i)) = input else { return Err(b.wrong_input()) };
         let name = b.stage.name.clone();
         Ok(Some(AnyPort::Map(b.pipeline.stage(&name, i, FmapStage::new(self)))))
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 

@@ -7,23 +7,18 @@ use serde::Deserialize;
 
 use crate::pipeline::{
     actor::{Emitter, Source},
-    config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+    config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
     error::Error,
     message::{shape_stem, Envelope, Failure, InputFile, Job, LabelSpec},
     store::{is_mesh_file, label_sidecar, natural_key, read_dir_sorted},
 };
 
-/// The `folder` stage type.
-pub(super) const TYPE: StageType =
-    StageType { name: "folder", ports: (None, Some(PortType::File)), parse: parse_config::<FolderConfig> };
-
 impl StageConfig for FolderConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType = StageType {
+        name: "folder",
+        ports: (None, Some(PortType::File)),
+        parse: parse_config::<FolderConfig>,
+    };
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
         if input.is_some() {
             return Err(b.wrong_input());
@@ -32,9 +27,6 @@ impl StageConfig for FolderConfig {
         c.folder = b.resolve(&c.folder);
         let name = b.stage.name.clone();
         Ok(Some(AnyPort::File(b.pipeline.source(&name, FolderSource::new(c)))))
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 

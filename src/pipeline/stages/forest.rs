@@ -6,14 +6,10 @@ use serde::Deserialize;
 
 use crate::pipeline::{
     actor::Stage,
-    config::{AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+    config::{AnyPort, AnyStageConfig, Builder, PortType, StageConfig, StageType},
     error::Error,
     message::{DescribedShape, Failure, FailureKind, Job, PredictedShape},
 };
-
-/// The `forest` stage type.
-pub(super) const TYPE: StageType =
-    StageType { name: "forest", ports: (Some(PortType::Descriptor), Some(PortType::Prediction)), parse };
 
 /// Settings of `forest` (none yet).
 #[derive(Clone, Debug, Default, Deserialize)]
@@ -21,7 +17,7 @@ pub(super) const TYPE: StageType =
 pub struct ForestConfig {}
 
 /// Parses the settings of a stage type that takes none.
-fn parse(rest: toml::Table) -> Result<Arc<dyn StageConfig>, String> {
+fn parse(rest: toml::Table) -> Result<Arc<dyn AnyStageConfig>, String> {
     match rest.keys().next() {
         Some(k) => Err(format!("unknown key `{k}` (this stage type takes no settings)")),
         None => Ok(Arc::new(ForestConfig::default())),
@@ -29,19 +25,12 @@ fn parse(rest: toml::Table) -> Result<Arc<dyn StageConfig>, String> {
 }
 
 impl StageConfig for ForestConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType =
+        StageType { name: "forest", ports: (Some(PortType::Descriptor), Some(PortType::Prediction)), parse };
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
         let Some(AnyPort::Descriptor(i)) = input else { return Err(b.wrong_input()) };
         let name = b.stage.name.clone();
         Ok(Some(AnyPort::Prediction(b.pipeline.stage(&name, i, ForestStage))))
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 

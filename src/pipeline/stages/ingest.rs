@@ -9,27 +9,19 @@ use crate::{
     mesh::read_mesh_limited,
     pipeline::{
         actor::Stage,
-        config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
         error::Error,
         message::{Failure, InputFile, Job, LabelSpec, Shape},
         store::read_labels,
     },
 };
 
-/// The `ingest` stage type.
-pub(super) const TYPE: StageType = StageType {
-    name: "ingest",
-    ports: (Some(PortType::File), Some(PortType::Shape)),
-    parse: parse_config::<IngestConfig>,
-};
-
 impl StageConfig for IngestConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType = StageType {
+        name: "ingest",
+        ports: (Some(PortType::File), Some(PortType::Shape)),
+        parse: parse_config::<IngestConfig>,
+    };
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
         let Some(AnyPort::File(i)) = input else { return Err(b.wrong_input()) };
         // Files dropped into a watched folder: links are not followed.
@@ -38,9 +30,6 @@ impl StageConfig for IngestConfig {
             IngestStage::new(self.clone()).with_limits(b.spec.settings.limits).follow_symlinks(!watched);
         let name = b.stage.name.clone();
         Ok(Some(AnyPort::Shape(b.pipeline.stage(&name, i, stage))))
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 

@@ -10,27 +10,19 @@ use crate::{
     mesh::{coordinate_colors, write_colored_ply},
     pipeline::{
         actor::Sink,
-        config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
         error::{Error, IoAt},
         message::{Failure, Job, MatchedShape},
         store::{defer, is_claimed, move_file, reject_or_defer, unique_path, unix_now, DataDir, InputKind},
     },
 };
 
-/// The `match-sink` stage type.
-pub(super) const TYPE: StageType = StageType {
-    name: "match-sink",
-    ports: (Some(PortType::Map), None),
-    parse: parse_config::<MatchSinkConfig>,
-};
-
 impl StageConfig for MatchSinkConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType = StageType {
+        name: "match-sink",
+        ports: (Some(PortType::Map), None),
+        parse: parse_config::<MatchSinkConfig>,
+    };
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
         let Some(AnyPort::Map(i)) = input else { return Err(b.wrong_input()) };
         let mut c = self.clone();
@@ -39,9 +31,6 @@ impl StageConfig for MatchSinkConfig {
         let sink = MatchSink::new(b.data.clone(), c);
         b.pipeline.sink(&name, i, sink);
         Ok(None)
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 

@@ -11,27 +11,19 @@ use crate::{
     geodesic::HeatParams,
     pipeline::{
         actor::Stage,
-        config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
         error::Error,
         message::{Failure, Job, PredictedShape, SparselyMatched},
     },
     regularizer::{sparse_matches, AnchorGrowthParams, PreparedShape, RegularizerParams, ZoomOutParams},
 };
 
-/// The `matcher` stage type.
-pub(super) const TYPE: StageType = StageType {
-    name: "matcher",
-    ports: (Some(PortType::Prediction), Some(PortType::Matches)),
-    parse: parse_config::<MatcherConfig>,
-};
-
 impl StageConfig for MatcherConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType = StageType {
+        name: "matcher",
+        ports: (Some(PortType::Prediction), Some(PortType::Matches)),
+        parse: parse_config::<MatcherConfig>,
+    };
     fn check(&self) -> Result<(), String> {
         check_regularizer(&regularizer_params(self, &FmapConfig::default()))
     }
@@ -39,9 +31,6 @@ impl StageConfig for MatcherConfig {
         let Some(AnyPort::Prediction(i)) = input else { return Err(b.wrong_input()) };
         let name = b.stage.name.clone();
         Ok(Some(AnyPort::Matches(b.pipeline.stage(&name, i, MatcherStage::new(self)))))
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 

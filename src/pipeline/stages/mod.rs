@@ -17,8 +17,8 @@
 //! | `eval-sink` | `eval_sink.rs` | map | — |
 //! | `trainer` | `trainer.rs` | spectrum | — |
 //!
-//! A new stage type is one new file (a config implementing [`StageConfig`] and a `TYPE`
-//! constant) plus one line in [`builtin`] — or, outside the crate, one
+//! A new stage type is one new file (a config implementing [`StageConfig`], whose `TYPE`
+//! names it) plus one line in [`builtin`] — or, outside the crate, one
 //! [`super::config::Registry::with`] call (see `examples/custom_pipeline.rs`).
 
 mod descriptor;
@@ -47,22 +47,22 @@ pub use synthetic::{SyntheticConfig, SyntheticSource};
 pub use trainer::{TrainMode, TrainerConfig, TrainerSink};
 pub use watch_folder::{open_for_writing, WatchConfig, WatchKind, WatchSource};
 
-use super::config::StageType;
+use super::config::{StageConfig, StageType};
 
 /// The built-in stage types, as a [`super::config::Registry`] holds them.
 pub fn builtin() -> Vec<StageType> {
     vec![
-        folder::TYPE,
-        watch_folder::TYPE,
-        synthetic::TYPE,
-        ingest::TYPE,
-        spectral::TYPE,
-        descriptor::TYPE,
-        forest::TYPE,
-        matcher::TYPE,
-        fmap::TYPE,
-        match_sink::TYPE,
-        eval_sink::TYPE,
-        trainer::TYPE,
+        FolderConfig::TYPE,
+        WatchConfig::TYPE,
+        SyntheticConfig::TYPE,
+        IngestConfig::TYPE,
+        SpectralConfig::TYPE,
+        DescriptorConfig::TYPE,
+        ForestConfig::TYPE,
+        MatcherConfig::TYPE,
+        FmapConfig::TYPE,
+        MatchSinkConfig::TYPE,
+        EvalSinkConfig::TYPE,
+        TrainerConfig::TYPE,
     ]
 }

@@ -8,35 +8,24 @@ use serde::Deserialize;
 use crate::{
     pipeline::{
         actor::Stage,
-        config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
         error::Error,
         message::{Failure, Job, Shape, SpectralShape},
     },
     spectral::{compute_spectrum, SpectrumCache, SpectrumParams},
 };
 
-/// The `spectral` stage type.
-pub(super) const TYPE: StageType = StageType {
-    name: "spectral",
-    ports: (Some(PortType::Shape), Some(PortType::Spectrum)),
-    parse: parse_config::<SpectralConfig>,
-};
-
 impl StageConfig for SpectralConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType = StageType {
+        name: "spectral",
+        ports: (Some(PortType::Shape), Some(PortType::Spectrum)),
+        parse: parse_config::<SpectralConfig>,
+    };
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
         let Some(AnyPort::Shape(i)) = input else { return Err(b.wrong_input()) };
         let stage = SpectralStage::new(self, Some(b.data.cache())).map_err(|e| b.error(e))?;
         let name = b.stage.name.clone();
         Ok(Some(AnyPort::Spectrum(b.pipeline.stage(&name, i, stage))))
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 

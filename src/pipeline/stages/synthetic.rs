@@ -8,36 +8,25 @@ use crate::{
     forest::labels_identity,
     pipeline::{
         actor::{Emitter, Source},
-        config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
         error::Error,
         message::{Envelope, Job, Shape},
     },
     synth::{creature_family, CreatureParams},
 };
 
-/// The `synthetic` stage type.
-pub(super) const TYPE: StageType = StageType {
-    name: "synthetic",
-    ports: (None, Some(PortType::Shape)),
-    parse: parse_config::<SyntheticConfig>,
-};
-
 impl StageConfig for SyntheticConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType = StageType {
+        name: "synthetic",
+        ports: (None, Some(PortType::Shape)),
+        parse: parse_config::<SyntheticConfig>,
+    };
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
         if input.is_some() {
             return Err(b.wrong_input());
         }
         let name = b.stage.name.clone();
         Ok(Some(AnyPort::Shape(b.pipeline.source(&name, SyntheticSource::new(self.clone())))))
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 

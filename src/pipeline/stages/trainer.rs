@@ -23,7 +23,7 @@ use crate::{
     mesh::{read_mesh_limited, write_mesh, Mesh},
     pipeline::{
         actor::Sink,
-        config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
         error::{Error, IoAt},
         message::{shape_stem, Failure, Job, Shape, SpectralShape},
         model::{load_stored, LiveModel, ModelState},
@@ -38,20 +38,12 @@ use crate::{
     spectral::{SpectrumCache, SpectrumParams},
 };
 
-/// The `trainer` stage type.
-pub(super) const TYPE: StageType = StageType {
-    name: "trainer",
-    ports: (Some(PortType::Spectrum), None),
-    parse: parse_config::<TrainerConfig>,
-};
-
 impl StageConfig for TrainerConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType = StageType {
+        name: "trainer",
+        ports: (Some(PortType::Spectrum), None),
+        parse: parse_config::<TrainerConfig>,
+    };
     fn check(&self) -> Result<(), String> {
         self.forest_params().map(|_| ())
     }
@@ -68,9 +60,6 @@ impl StageConfig for TrainerConfig {
         let name = b.stage.name.clone();
         b.pipeline.sink(&name, i, t);
         Ok(None)
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 

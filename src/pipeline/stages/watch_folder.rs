@@ -14,7 +14,7 @@ use crate::{
     limits::escape_name,
     pipeline::{
         actor::{Emitter, Source},
-        config::{parse_config, AnyPort, Builder, PortType, Ports, StageConfig, StageType},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
         error::{Error, IoAt},
         message::{shape_stem, Envelope, Failure, InputFile, Job, LabelSpec},
         store::{
@@ -24,20 +24,12 @@ use crate::{
     },
 };
 
-/// The `watch-folder` stage type.
-pub(super) const TYPE: StageType = StageType {
-    name: "watch-folder",
-    ports: (None, Some(PortType::File)),
-    parse: parse_config::<WatchConfig>,
-};
-
 impl StageConfig for WatchConfig {
-    fn type_name(&self) -> &'static str {
-        TYPE.name
-    }
-    fn ports(&self) -> Ports {
-        TYPE.ports
-    }
+    const TYPE: StageType = StageType {
+        name: "watch-folder",
+        ports: (None, Some(PortType::File)),
+        parse: parse_config::<WatchConfig>,
+    };
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
         if input.is_some() {
             return Err(b.wrong_input());
@@ -45,9 +37,6 @@ impl StageConfig for WatchConfig {
         let name = b.stage.name.clone();
         let source = WatchSource::new(b.data.clone(), self.clone());
         Ok(Some(AnyPort::File(b.pipeline.source(&name, source))))
-    }
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
     }
 }
 
