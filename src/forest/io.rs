@@ -54,12 +54,7 @@ struct Payload {
 /// assert_ne!(fnv1a64(b"a"), fnv1a64(b"b"));
 /// ```
 pub fn fnv1a64(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01B3);
-    }
-    h
+    crate::fsutil::fnv1a64(bytes)
 }
 
 impl RandomForest {

@@ -23,7 +23,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use super::{compute_spectrum, SpectralError, Spectrum, SpectrumParams, SOLVER_VERSION};
-use crate::mesh::{Fnv64, Mesh};
+use crate::mesh::Mesh;
 
 const MAGIC: [u8; 8] = *b"SFSPEC\0\0";
 const HEADER_LEN: usize = 8 + 4 + 4 + 8 + 8 + 8 + 8;
@@ -122,9 +122,7 @@ impl SpectrumCache {
 }
 
 fn checksum(payload: &[u8]) -> u64 {
-    let mut h = Fnv64::new();
-    h.write_bytes(payload);
-    h.finish()
+    crate::fsutil::fnv1a64(payload)
 }
 
 fn encode(spectrum: &Spectrum, mesh_hash: u64) -> Result<Vec<u8>, String> {
