@@ -246,7 +246,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
 
     let confidence = prediction.mean_confidence();
     let tm = &dense.timings;
-    let report = serde_json::json!({
+    let details = serde_json::json!({
         "mesh": args.mesh.display().to_string(),
         "reference": args.reference.display().to_string(),
         "to": args.to.as_ref().map(|p| p.display().to_string()),
@@ -260,13 +260,6 @@ pub fn run(args: MatchArgs) -> Result<()> {
         "reference_vertices": reference.n_vertices(),
         "to_vertices": target.as_ref().map(|t| t.0.n_vertices()),
         "n_matches": dense.matches.len(),
-        "orientation_score": dense.orientation_score,
-        "mirror_rejected": dense.mirror_rejected,
-        "grown_anchors": dense.grown_anchors,
-        "dense_orientation_agreement": dense.dense_orientation,
-        "reoriented": dense.reoriented,
-        "mean_forest_confidence": confidence,
-        "mean_forest_support": prediction.mean_support(),
         "timings_s": {
             "load": load_s,
             "spectrum_mesh": spectrum_scan_s,
@@ -284,7 +277,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
             "total": t_all.elapsed().as_secs_f64(),
         },
     });
-    let json = serde_json::to_string_pretty(&report)? + "\n";
+    let json = shapeforest::pipeline::MatchReport::new(&dense, &prediction, details).to_json()?;
     let report_path = args.out.join(format!("{scan_name}.report.json"));
     std::fs::write(&report_path, json).with_context(|| format!("cannot write {}", report_path.display()))?;
     println!(

@@ -14,6 +14,7 @@
 //!   loading the newest model that can serve.
 //! - [`store`]: the daemon's data folder, the claim / commit / reject / recover protocol that
 //!   makes it restart-safe, model versions on disk.
+//! - [`report`]: the [`MatchReport`] of a matched scan (shared with `shapeforest match`).
 //! - [`lock`]: the exclusive lock on a data folder (one process at a time).
 //! - [`config`]: `pipelines/*.toml` — the [`StageConfig`] trait and [`Registry`] of stage types,
 //!   parsing, validation naming stage and key, building.
@@ -33,6 +34,7 @@ pub mod graph;
 pub mod lock;
 pub mod message;
 pub mod model;
+pub mod report;
 pub mod shutdown;
 pub mod stages;
 pub mod store;
@@ -54,6 +56,7 @@ pub use message::{
 pub use model::{
     label_table, load_live_model, load_live_model_for, LiveModel, ModelState, NoModel, ServeNeeds,
 };
+pub use report::{MapQuality, MatchReport};
 pub use shutdown::Shutdown;
 pub use store::{
     atomic_write, defer, is_claimed, is_mesh_file, is_transient_file, label_map_text, label_sidecar,

@@ -13,6 +13,7 @@ use crate::{
         config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
         error::{Error, IoAt},
         message::{Failure, Job, MatchedShape},
+        report::MatchReport,
         store::{defer, is_claimed, move_file, reject_or_defer, unique_path, unix_now, DataDir, InputKind},
     },
 };
@@ -147,7 +148,7 @@ impl MatchSink {
         let latency = job.started.elapsed().as_secs_f64();
         let stages: serde_json::Map<String, serde_json::Value> =
             job.stage_seconds.iter().map(|(s, t)| (s.clone(), serde_json::json!(t))).collect();
-        let report = serde_json::json!({
+        let details = serde_json::json!({
             "job": job.id,
             "input": job.arrived_as.clone().unwrap_or_else(|| name.clone()),
             "vertices": mesh.n_vertices(),
@@ -156,18 +157,11 @@ impl MatchSink {
             "reference_vertices": model.reference.mesh.n_vertices(),
             "map_file": map_file,
             "n_sparse_matches": dense.matches.len(),
-            "orientation_score": dense.orientation_score,
-            "mirror_rejected": dense.mirror_rejected,
-            "grown_anchors": dense.grown_anchors,
-            "dense_orientation_agreement": dense.dense_orientation,
-            "reoriented": dense.reoriented,
-            "mean_forest_confidence": m.predicted.prediction.mean_confidence(),
-            "mean_forest_support": m.predicted.prediction.mean_support(),
             "stage_seconds": stages,
             "latency_s": latency,
             "finished_unix": unix_now(),
         });
-        let text = serde_json::to_string_pretty(&report)? + "\n";
+        let text = MatchReport::new(dense, &m.predicted.prediction, details).to_json()?;
         let report_path = partial.join(format!("{name}.report.json"));
         fs::write(&report_path, text).at(&report_path)?;
         // Commit: the claimed input moves in beside its result, then the folder gets its name.
