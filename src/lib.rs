@@ -46,6 +46,8 @@
 //!   eigenvectors are orthonormal in the **mass (M) inner product**, not the plain dot product;
 //! - geodesic errors are normalised by the square root of the target's surface area.
 
+#![warn(missing_docs)]
+
 pub mod descriptor;
 pub mod error;
 pub mod eval;

@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use shapeforest::{
     mesh::{read_mesh_with_report, Mesh},
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// Mesh file extensions the readers understand (optionally followed by `.gz`).
@@ -70,10 +70,7 @@ pub fn spectra(meshes: &[&Mesh], k: usize, cache: Option<&Path>, label: &str) ->
     let out: Result<Vec<_>> = meshes
         .par_iter()
         .map(|m| {
-            let s = match &cache {
-                Some(c) => c.get_or_compute(m, &params)?,
-                None => compute_spectrum(m, &params)?,
-            };
+            let s = spectrum_cached(m, &params, cache.as_ref())?;
             bar.inc(1);
             Ok(Arc::new(s))
         })

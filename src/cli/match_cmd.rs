@@ -28,7 +28,7 @@ use shapeforest::{
     forest::{per_vertex_labels, read_label_map, read_per_label_rows, reference_table, RandomForest},
     mesh::{coordinate_colors, read_mesh, write_colored_ply, Mesh},
     regularizer::{regularize, regularize_pair, PairParams, PreparedShape, RegularizerParams},
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// Arguments of `shapeforest match`.
@@ -137,11 +137,8 @@ fn spectrum(
     cache: Option<&SpectrumCache>,
     path: &Path,
 ) -> Result<Spectrum> {
-    let r = match cache {
-        Some(c) => c.get_or_compute(mesh, params),
-        None => compute_spectrum(mesh, params),
-    };
-    r.with_context(|| format!("cannot compute the spectrum of {}", path.display()))
+    spectrum_cached(mesh, params, cache)
+        .with_context(|| format!("cannot compute the spectrum of {}", path.display()))
 }
 
 fn write_colored(path: &Path, mesh: &Mesh, colors: &[[u8; 3]]) -> Result<()> {

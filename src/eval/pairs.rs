@@ -33,7 +33,7 @@ use crate::{
     forest::{RandomForestParams, TrainingSet, TrainingShape},
     geodesic::{HeatMethodSolver, HeatParams},
     regularizer::{regularize, regularize_onto, DenseMap, PairParams, PreparedShape, RegularizerParams},
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// A measured pairwise method.
@@ -312,10 +312,7 @@ pub fn run_pairs(
         if spectra.contains_key(&s) {
             continue;
         }
-        let sp = match &cache {
-            Some(c) => c.get_or_compute(&shapes[s].mesh, &params.spectrum)?,
-            None => compute_spectrum(&shapes[s].mesh, &params.spectrum)?,
-        };
+        let sp = spectrum_cached(&shapes[s].mesh, &params.spectrum, cache.as_ref())?;
         spectra.insert(s, Arc::new(sp));
     }
     timings.spectra_s = t0.elapsed().as_secs_f64();

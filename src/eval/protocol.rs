@@ -51,7 +51,7 @@ use crate::{
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, perturbations_name, Mesh, Perturbation},
     regularizer::{regularize, PreparedShape, RegularizerParams},
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// One shape of the evaluated class with its ground-truth table.
@@ -421,10 +421,7 @@ pub fn run_protocol(
     let mut spectrum_s = vec![0.0; shapes.len()];
     for (i, &s) in used.iter().enumerate() {
         let t0 = Instant::now();
-        let sp = match &cache {
-            Some(c) => c.get_or_compute(&shapes[s].mesh, &params.spectrum)?,
-            None => compute_spectrum(&shapes[s].mesh, &params.spectrum)?,
-        };
+        let sp = spectrum_cached(&shapes[s].mesh, &params.spectrum, cache.as_ref())?;
         spectra[s] = Some(Arc::new(sp));
         spectrum_s[s] = t0.elapsed().as_secs_f64();
         if let Some(cb) = progress.as_mut() {
@@ -524,10 +521,7 @@ pub fn run_protocol(
             })?;
             let fraction = p.area_fraction(&test_shape.mesh);
             let mesh = Arc::new(p.mesh);
-            let sp = match &cache {
-                Some(c) => c.get_or_compute(&mesh, &params.spectrum)?,
-                None => compute_spectrum(&mesh, &params.spectrum)?,
-            };
+            let sp = spectrum_cached(&mesh, &params.spectrum, cache.as_ref())?;
             (mesh, Arc::new(sp), Some(p.kept), fraction)
         };
         let t0 = Instant::now();

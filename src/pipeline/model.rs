@@ -24,7 +24,7 @@ use crate::{
     geodesic::HeatParams,
     mesh::{read_mesh_limited, Mesh},
     regularizer::PreparedShape,
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// One version of the model: a forest and the reference shape its labels live on.
@@ -170,11 +170,8 @@ pub(crate) fn load_stored(
     })?;
     let (mesh, _) = read_mesh_limited(&stored.mesh, limits, false)?;
     let labels = read_labels(&stored.labels, mesh.n_vertices(), limits)?;
-    let spectrum = match cache {
-        Some(c) => c.get_or_compute(&mesh, params),
-        None => compute_spectrum(&mesh, params),
-    }
-    .map_err(|e| Error::BadInput(format!("{}: {e}", stored.mesh.display())))?;
+    let spectrum = spectrum_cached(&mesh, params, cache)
+        .map_err(|e| Error::BadInput(format!("{}: {e}", stored.mesh.display())))?;
     Ok((Arc::new(mesh), labels, spectrum))
 }
 

@@ -12,7 +12,7 @@ use crate::{
         error::Error,
         message::{Failure, Job, Shape, SpectralShape},
     },
-    spectral::{compute_spectrum, SpectrumCache, SpectrumParams},
+    spectral::{spectrum_cached, SpectrumCache, SpectrumParams},
 };
 
 impl StageConfig for SpectralConfig {
@@ -78,12 +78,8 @@ impl Stage for SpectralStage {
     type Out = SpectralShape;
 
     fn process(&mut self, job: &mut Job, shape: Shape) -> Result<SpectralShape, Failure> {
-        let r = match &self.cache {
-            Some(c) => c.get_or_compute(&shape.mesh, &self.params),
-            None => compute_spectrum(&shape.mesh, &self.params),
-        };
-        let spectrum =
-            r.map_err(|e| Failure::bad_input("spectral", format!("{}: {e}", job.display_source())))?;
+        let spectrum = spectrum_cached(&shape.mesh, &self.params, self.cache.as_ref())
+            .map_err(|e| Failure::bad_input("spectral", format!("{}: {e}", job.display_source())))?;
         Ok(SpectralShape { shape, spectrum: Arc::new(spectrum) })
     }
 }
