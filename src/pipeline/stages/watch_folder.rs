@@ -5,10 +5,13 @@ use std::{
     collections::HashMap,
     fs,
     path::{Path, PathBuf},
-    time::{Duration, Instant, SystemTime},
+    time::{Duration, SystemTime},
 };
 
 use serde::Deserialize;
+// tokio's clock (the system clock outside tests): the settle logic can be tested with a paused
+// clock.
+use tokio::time::Instant;
 
 use crate::{
     limits::escape_name,
@@ -488,5 +491,40 @@ impl WatchSource {
         };
         tracing::info!(job = job.id, file = %escape_name(&path.display().to_string()), "claimed");
         out.emit(Envelope { job, body })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The settle rule on tokio's paused clock: a file is ready once its size and modification
+    /// time have not changed for `settle_ms`; a change starts the wait again.
+    #[tokio::test(start_paused = true)]
+    async fn a_file_is_taken_once_unchanged_for_the_settle_time() {
+        let tmp = tempfile::tempdir().unwrap();
+        let data = DataDir::new(tmp.path());
+        data.create().unwrap();
+        let config =
+            WatchConfig { kind: WatchKind::Scan, settle_ms: 2000, rescan_ms: 2000, exit_when_empty: false };
+        let mut watcher = WatchSource::new(data.clone(), config);
+        let file = data.incoming().join("a.off");
+        fs::write(&file, "OFF\n").unwrap();
+        let mut seen = HashMap::new();
+        let step = |ms| tokio::time::advance(Duration::from_millis(ms));
+        assert!(watcher.scan(&mut seen).ready.is_empty(), "first seen: not settled");
+        step(1999).await;
+        assert!(watcher.scan(&mut seen).ready.is_empty(), "1.999 s unchanged: not yet");
+        fs::write(&file, "OFF\n3 1 0\n").unwrap();
+        step(1500).await;
+        assert!(watcher.scan(&mut seen).ready.is_empty(), "it grew: the wait starts again");
+        step(1999).await;
+        assert!(watcher.scan(&mut seen).ready.is_empty());
+        step(2).await;
+        assert_eq!(watcher.scan(&mut seen).ready, vec![file.clone()], "2 s unchanged: ready");
+        // A copy in progress under a temporary name is never taken.
+        fs::write(data.incoming().join("b.off.part"), "OFF\n").unwrap();
+        step(60_000).await;
+        assert_eq!(watcher.scan(&mut seen).ready, vec![file]);
     }
 }
