@@ -2,13 +2,11 @@
 //! match pipeline (the daemon's sink), `shapeforest view` on both kinds of result folder, and
 //! the evaluation's `index.html` with a snapshot and a view per test shape.
 
+mod common;
+
 use std::{path::Path, process::Command};
 
-use shapeforest::{mesh::write_mesh, synth};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_shapeforest"))
-}
+use common::bin;
 
 fn run(cmd: &mut Command) -> String {
     let out = cmd.output().unwrap();
@@ -46,20 +44,7 @@ fn assert_both_drawn(path: &Path) {
 fn match_results_get_a_snapshot_and_view_writes_a_page() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    let fam = synth::creature_family(
-        &synth::CreatureParams { target_vertices: 1200, seed: 4, ..Default::default() },
-        4,
-    )
-    .unwrap();
-    let n = fam.template.n_vertices();
-    let labels: String = (0..n).map(|v| format!("{v}\n")).collect();
-    std::fs::create_dir_all(data.join("labeled")).unwrap();
-    std::fs::create_dir_all(data.join("incoming")).unwrap();
-    for i in 0..3 {
-        write_mesh(data.join(format!("labeled/c{i}.off")), &fam.shapes[i]).unwrap();
-        std::fs::write(data.join(format!("labeled/c{i}.labels")), &labels).unwrap();
-    }
-    write_mesh(data.join("incoming/scan.off"), &fam.shapes[3]).unwrap();
+    common::creatures_data_folder(&data, 4);
     let root = env!("CARGO_MANIFEST_DIR");
     for p in ["train", "match"] {
         run(bin().arg("run").arg(format!("{root}/pipelines/{p}.toml")).arg("--data-dir").arg(&data));

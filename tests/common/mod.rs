@@ -1,7 +1,9 @@
 //! Fixtures shared by the integration tests: the binary, the shared data folder, labelled
-//! synthetic shapes (`labels`) and the daemon driver (`daemon`).
+//! synthetic shapes (`labels`), the bumpy-sphere family (`bumpy`, shared with the benches), a
+//! data folder with labelled creatures and a scan, and the daemon driver (`daemon`).
 #![allow(dead_code)]
 
+pub mod bumpy;
 pub mod daemon;
 pub mod labels;
 
@@ -40,4 +42,25 @@ pub fn shared_data(relative: &str) -> Option<PathBuf> {
     }
     println!("SKIPPED: {why}");
     None
+}
+
+/// A data folder for `pipelines/train.toml` and `match.toml`: three labelled creatures of
+/// ~1200 vertices (identity labels) in `labeled/` and a fourth pose as `incoming/scan.off`.
+/// Returns the vertices per shape.
+pub fn creatures_data_folder(data: &Path, seed: u64) -> usize {
+    let fam = shapeforest::synth::creature_family(
+        &shapeforest::synth::CreatureParams { target_vertices: 1200, seed, ..Default::default() },
+        4,
+    )
+    .unwrap();
+    let n = fam.template.n_vertices();
+    let labels: String = (0..n).map(|v| format!("{v}\n")).collect();
+    std::fs::create_dir_all(data.join("labeled")).unwrap();
+    std::fs::create_dir_all(data.join("incoming")).unwrap();
+    for i in 0..3 {
+        shapeforest::mesh::write_mesh(data.join(format!("labeled/c{i}.off")), &fam.shapes[i]).unwrap();
+        std::fs::write(data.join(format!("labeled/c{i}.labels")), &labels).unwrap();
+    }
+    shapeforest::mesh::write_mesh(data.join("incoming/scan.off"), &fam.shapes[3]).unwrap();
+    n
 }
