@@ -60,15 +60,15 @@ fn match_results_get_a_snapshot_and_view_writes_a_page() {
 
     // `shapeforest match` writes SCAN.png too, and its folder can be viewed.
     let out = dir.path().join("m");
-    run(bin()
-        .args(["match", "--model"])
-        .arg(data.join("models/model-v000001.sfm"))
-        .arg("--reference")
-        .arg(data.join("labeled/c0.off"))
-        .arg("--mesh")
-        .arg(data.join("incoming/scan.off"))
-        .arg("--out")
-        .arg(&out));
+    // `shapeforest match` of the folder's scan onto its reference c0 (and `extra` arguments).
+    let match_scan = |out: &Path, extra: &[&std::ffi::OsStr]| {
+        let mut cmd = bin();
+        cmd.args(["match", "--model"]).arg(data.join("models/model-v000001.sfm"));
+        cmd.arg("--reference").arg(data.join("labeled/c0.off"));
+        cmd.arg("--mesh").arg(data.join("incoming/scan.off")).args(extra).arg("--out").arg(out);
+        run(&mut cmd)
+    };
+    match_scan(&out, &[]);
     assert_both_drawn(&out.join("scan.png"));
     // With a SCAN.errors.csv beside the map the page gets the heat map and the curve.
     std::fs::write(out.join("scan.errors.csv"), "vertex,error\n0,0.01\n7,0.3\n").unwrap();
@@ -78,17 +78,8 @@ fn match_results_get_a_snapshot_and_view_writes_a_page() {
 
     // A scan-to-scan map (`match --to B`): the page shows the scan against B.
     let out2 = dir.path().join("m2");
-    run(bin()
-        .args(["match", "--model"])
-        .arg(data.join("models/model-v000001.sfm"))
-        .arg("--reference")
-        .arg(data.join("labeled/c0.off"))
-        .arg("--mesh")
-        .arg(data.join("incoming/scan.off"))
-        .arg("--to")
-        .arg(data.join("labeled/c1.off"))
-        .arg("--out")
-        .arg(&out2));
+    let b = data.join("labeled/c1.off");
+    match_scan(&out2, &["--to".as_ref(), b.as_os_str()]);
     assert_both_drawn(&out2.join("scan.png"));
     run(bin().arg("view").arg(&out2));
     let page = std::fs::read_to_string(out2.join("view.html")).unwrap();

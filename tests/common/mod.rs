@@ -12,9 +12,17 @@ use std::{
     process::Command,
 };
 
-/// The `shapeforest` binary built for the tests.
+/// The binary under test: the one built for the tests, or `$SHAPEFOREST_TEST_BIN` (to run the
+/// suite against another build, e.g. to check that a test fails without a fix).
+pub fn bin_path() -> PathBuf {
+    std::env::var_os("SHAPEFOREST_TEST_BIN")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_shapeforest")))
+}
+
+/// A command running the binary under test.
 pub fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_shapeforest"))
+    Command::new(bin_path())
 }
 
 /// The shared data folder: `$SHAPEFOREST_DATA`, else `../shared/data` beside the crate.
