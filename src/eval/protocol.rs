@@ -47,10 +47,12 @@ use serde::{Deserialize, Serialize};
 use super::{geodesic_errors, CurveSeries, ErrorSummary, EvalError};
 use crate::{
     descriptor::WksParams,
-    forest::{Prediction, RandomForest, RandomForestParams, TrainingSet, TrainingShape, WksKnn},
+    forest::{
+        augmented_shape, Prediction, RandomForest, RandomForestParams, TrainingSet, TrainingShape, WksKnn,
+    },
     geodesic::{HeatMethodSolver, HeatParams},
-    mesh::{perturb, perturbations_name, Mesh, Perturbation},
-    regularizer::{regularize, PreparedShape, RegularizerParams},
+    mesh::{extend_map_by_nearest, largest_component, perturb, perturbations_name, Mesh, Perturbation},
+    regularizer::{normalising_area, regularize, PreparedShape, RegularizerParams},
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
@@ -105,6 +107,19 @@ pub struct ProtocolParams {
     pub perturbations: Vec<Perturbation>,
     /// Skip the WKS k-NN baseline (its rows are then absent from the report).
     pub skip_baseline: bool,
+    /// Match only the largest connected component of a scan in pieces; the vertices of the
+    /// other pieces take the match of their nearest matched vertex (default `true`; see
+    /// [`crate::mesh::largest_component`]).
+    pub largest_component: bool,
+    /// Normalise an open, partial scan by the reference's area instead of its own (default
+    /// `true`; see [`crate::regularizer::normalising_area`]).
+    pub partial_scale: bool,
+    /// Training-set augmentation: for every kind (a perturbation list), `augment_copies`
+    /// seeded perturbed copies of each training shape join the training set (see
+    /// [`crate::forest::augmented_shape`]). Default: none.
+    pub augment: Vec<Vec<Perturbation>>,
+    /// Copies per training shape and augmentation kind (default 4).
+    pub augment_copies: usize,
 }
 
 impl Default for ProtocolParams {
@@ -123,6 +138,10 @@ impl Default for ProtocolParams {
             curve_steps: 100,
             perturbations: Vec::new(),
             skip_baseline: false,
+            largest_component: true,
+            partial_scale: true,
+            augment: Vec::new(),
+            augment_copies: 4,
         }
     }
 }
@@ -251,6 +270,16 @@ pub struct TestResult {
     /// The label of each error (a subset of [`ProtocolReport::eval_labels`]).
     #[serde(default)]
     pub labels: Vec<usize>,
+    /// Whether each error's point lies in the part of the scan that was matched (its largest
+    /// component; all `true` for a connected scan).
+    #[serde(default)]
+    pub in_matched_part: Vec<bool>,
+    /// Vertices of the matched part of the scan.
+    #[serde(default)]
+    pub matched_part_vertices: usize,
+    /// The area the scan was normalised by, relative to its own (1: its own area).
+    #[serde(default)]
+    pub scale_ratio: f64,
     /// The perturbed scan (`None` without perturbation: the scan is the test shape).
     #[serde(skip)]
     pub scan: Option<Arc<Mesh>>,
@@ -474,6 +503,25 @@ pub fn run_protocol(
                     labels: labels_of(&shapes[s]),
                 });
             }
+            for &s in &key {
+                let labels = labels_of(&shapes[s]);
+                for (kind_index, kind) in params.augment.iter().enumerate() {
+                    for copy in 0..params.augment_copies {
+                        let seed = params.seed
+                            ^ ((s as u64) << 32 | (kind_index as u64) << 16 | copy as u64)
+                                .wrapping_mul(0x9e37_79b9_7f4a_7c15);
+                        members.push(augmented_shape(
+                            &shapes[s].name,
+                            &shapes[s].mesh,
+                            &labels,
+                            kind,
+                            seed,
+                            &params.spectrum,
+                            cache.as_ref(),
+                        )?);
+                    }
+                }
+            }
             let set = TrainingSet::new(members, n_labels)?;
             let t0 = Instant::now();
             let forest = forest_params.fit(&set)?;
@@ -524,9 +572,33 @@ pub fn run_protocol(
             let sp = spectrum_cached(&mesh, &params.spectrum, cache.as_ref())?;
             (mesh, Arc::new(sp), Some(p.kept), fraction)
         };
+        // The part that is matched: the largest component of a scan in pieces, normalised by
+        // the reference's area when it is an open part of a body.
+        let part =
+            if params.largest_component && kept.is_some() { largest_component(&scan_mesh) } else { None };
+        let (part_mesh, part_spectrum, part_kept) = match part {
+            Some((mesh, part_kept)) => {
+                let mesh = Arc::new(mesh);
+                let sp = spectrum_cached(&mesh, &params.spectrum, cache.as_ref())?;
+                (mesh, Arc::new(sp), Some(part_kept))
+            }
+            None => (scan_mesh.clone(), scan_spectrum, None),
+        };
+        let (part_spectrum, scale_ratio) = if params.partial_scale && kept.is_some() {
+            let area = normalising_area(&part_mesh, shapes[reference].mesh.surface_area());
+            let ratio = area / part_spectrum.area;
+            (Arc::new(part_spectrum.renormalised(area)), ratio)
+        } else {
+            (part_spectrum, 1.0)
+        };
         let t0 = Instant::now();
-        let test_prepared = PreparedShape::new(scan_mesh.clone(), scan_spectrum, params.regularizer.heat)?;
+        let test_prepared = PreparedShape::new(part_mesh.clone(), part_spectrum, params.regularizer.heat)?;
         timings.prepare_s += t0.elapsed().as_secs_f64();
+        // A map on the part, as a map on the whole scan.
+        let on_scan = |map: Vec<usize>| match &part_kept {
+            Some(k) => extend_map_by_nearest(&scan_mesh, k, &map),
+            None => map,
+        };
 
         stage(&mut progress, "predict");
         let t0 = Instant::now();
@@ -594,15 +666,25 @@ pub fn run_protocol(
             };
             Ok(MethodErrors { method, strict, symmetric, map: map.to_vec() })
         };
-        let raw = |p: &Prediction| raw_map(p, table);
+        let raw = |p: &Prediction| on_scan(raw_map(p, table));
         let mut methods = vec![
             measure(Method::ForestRaw, &raw(&prediction))?,
-            measure(Method::ForestRegularized, &dense.map)?,
+            measure(Method::ForestRegularized, &on_scan(dense.map.clone()))?,
         ];
         if let Some((knn_prediction, knn_dense)) = &baseline {
             methods.push(measure(Method::WksKnnRaw, &raw(knn_prediction))?);
-            methods.push(measure(Method::WksKnnRegularized, &knn_dense.map)?);
+            methods.push(measure(Method::WksKnnRegularized, &on_scan(knn_dense.map.clone()))?);
         }
+        let in_matched_part = match &part_kept {
+            Some(k) => {
+                let mut inside = vec![false; scan_mesh.n_vertices()];
+                for &v in k {
+                    inside[v] = true;
+                }
+                evaluated.iter().map(|&v| inside[v]).collect()
+            }
+            None => vec![true; evaluated.len()],
+        };
         tests.push(TestResult {
             test: *t,
             reference,
@@ -620,6 +702,9 @@ pub fn run_protocol(
             scan: kept.is_some().then(|| scan_mesh.clone()),
             labels: columns.iter().map(|&j| eval_labels[j]).collect(),
             evaluated,
+            in_matched_part,
+            matched_part_vertices: part_mesh.n_vertices(),
+            scale_ratio,
         });
         if let Some(cb) = progress.as_mut() {
             cb(ProtocolEvent::TestDone { done: done + 1, total: jobs.len(), name: &test_shape.name });

@@ -54,6 +54,7 @@
 //! assert!((probs.iter().sum::<f32>() - 1.0).abs() < 1e-5);
 //! ```
 
+mod augment;
 mod io;
 mod knn;
 mod model;
@@ -63,6 +64,7 @@ mod reference;
 mod training;
 mod tree;
 
+pub use augment::augmented_shape;
 pub use io::{fnv1a64, ModelHeader, MODEL_FORMAT_VERSION, MODEL_MAGIC};
 pub use knn::WksKnn;
 pub use model::{ForestDescriptor, RandomForest};
@@ -123,6 +125,12 @@ pub enum ForestError {
     /// Descriptor computation failed.
     #[error(transparent)]
     Descriptor(#[from] crate::descriptor::DescriptorError),
+    /// A perturbed copy of a training shape could not be made (augmentation).
+    #[error(transparent)]
+    Mesh(#[from] crate::mesh::MeshError),
+    /// A training shape's spectrum could not be computed (augmentation).
+    #[error(transparent)]
+    Spectral(#[from] crate::spectral::SpectralError),
     /// Reading or writing a file failed. (The cause is in the message and deliberately not a
     /// `source`, so that an error chain prints it once.)
     #[error("{}: {error}", path.display())]

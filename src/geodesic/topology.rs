@@ -56,7 +56,7 @@ pub(crate) fn vertex_on_boundary(mesh: &Mesh, edges: &[(usize, usize, u32)]) -> 
 /// Connected component label of every vertex (through faces). Unreferenced vertices get a
 /// component of their own. Labels are `0..n_components`, numbered by lowest vertex.
 pub(crate) fn vertex_components(mesh: &Mesh) -> Vec<usize> {
-    crate::mesh::vertex_components(mesh).0
+    crate::mesh::face_connectivity(mesh).labels().0
 }
 
 /// The edge graph in compressed (CSR) form: neighbours of `v` are

@@ -33,6 +33,7 @@ mod error;
 mod io;
 mod obj;
 mod off;
+mod parts;
 mod perturb;
 mod ply;
 mod report;
@@ -48,12 +49,13 @@ pub use io::{
 };
 pub use obj::{parse_obj, write_obj};
 pub use off::{parse_off, write_off};
+pub use parts::{extend_map_by_nearest, largest_component, submesh, vertex_components};
 pub use perturb::{perturb, perturbations_name, Perturbation, Perturbed};
 pub use ply::{parse_ply, write_ply, PlyEncoding};
 pub use report::{MeshFormat, MeshReport, MeshWarning};
 pub use summary::{is_zero_area, ComponentSize, MeshSummary};
 pub use text::MAX_DECOMPRESSED_BYTES;
-pub use topology::{face_connectivity, vertex_components, UnionFind};
+pub use topology::{face_connectivity, UnionFind};
 pub use tosca::{parse_tosca, parse_tri, parse_vert, write_tosca};
 
 use serde::{Deserialize, Serialize};

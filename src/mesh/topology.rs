@@ -1,5 +1,6 @@
-//! Connectivity: a union–find over element indices and the connected components of a mesh
-//! through its faces (used by the mesh summary, the geodesic solvers and the spectral solver).
+//! Connectivity: a union–find over element indices and a mesh's vertices joined through its
+//! faces (behind the mesh summary, [`super::vertex_components`], the geodesic solvers and the
+//! spectral solver).
 
 use super::Mesh;
 
@@ -70,20 +71,4 @@ pub fn face_connectivity(mesh: &Mesh) -> UnionFind {
         uf.union(f[0], f[2]);
     }
     uf
-}
-
-/// Connected component label of every vertex (through faces), numbered `0..count` by lowest
-/// vertex, and `count`. An unreferenced vertex is a component of its own.
-///
-/// ```
-/// use shapeforest::mesh::{vertex_components, Mesh};
-/// let two = Mesh::new(
-///     vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [5.0, 0.0, 0.0], [6.0, 0.0, 0.0], [5.0, 1.0, 0.0]],
-///     vec![[0, 1, 2], [3, 4, 5]],
-/// )
-/// .unwrap();
-/// assert_eq!(vertex_components(&two), (vec![0, 0, 0, 1, 1, 1], 2));
-/// ```
-pub fn vertex_components(mesh: &Mesh) -> (Vec<usize>, usize) {
-    face_connectivity(mesh).labels()
 }
