@@ -26,6 +26,7 @@ mod error;
 mod growth;
 mod orientation;
 mod pair;
+mod scan;
 mod smoothing;
 
 pub use error::RegularizerError;
@@ -34,6 +35,7 @@ use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
 pub use pair::{invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams};
+pub use scan::ScanPart;
 
 use faer::Mat;
 use serde::{Deserialize, Serialize};
