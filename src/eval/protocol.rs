@@ -53,8 +53,7 @@ use crate::{
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, perturbations_name, Mesh, Perturbation},
     regularizer::{regularize, PreparedShape, RegularizerParams, ScanPart},
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
-    Error,
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// One shape of the evaluated class with its ground-truth table.
@@ -392,8 +391,8 @@ fn plan(n_shapes: usize, params: &ProtocolParams) -> Vec<(usize, Vec<usize>)> {
 /// ground-truth points and, with a symmetry map, from their mirror images.
 type PreparedReference = (usize, PreparedShape, Mat<f64>, Option<Mat<f64>>);
 
-fn invalid(msg: String) -> Error {
-    EvalError::InvalidInput(msg).into()
+fn invalid(msg: String) -> EvalError {
+    EvalError::InvalidInput(msg)
 }
 
 /// Runs the protocol (see the module documentation) on `shapes`.
@@ -407,7 +406,7 @@ pub fn run_protocol(
     symmetry: Option<&[usize]>,
     params: &ProtocolParams,
     mut progress: Option<&mut dyn FnMut(ProtocolEvent<'_>)>,
-) -> Result<ProtocolReport, Error> {
+) -> Result<ProtocolReport, EvalError> {
     if shapes.len() < 2 {
         return Err(invalid(format!("the protocol needs at least 2 shapes, got {}", shapes.len())));
     }
@@ -456,10 +455,7 @@ pub fn run_protocol(
     let mut spectrum_s = vec![0.0; shapes.len()];
     for (i, &s) in used.iter().enumerate() {
         let t0 = Instant::now();
-        let sp = match &cache {
-            Some(c) => c.get_or_compute(&shapes[s].mesh, &params.spectrum)?,
-            None => compute_spectrum(&shapes[s].mesh, &params.spectrum)?,
-        };
+        let sp = spectrum_cached(&shapes[s].mesh, &params.spectrum, cache.as_ref())?;
         spectra[s] = Some(Arc::new(sp));
         spectrum_s[s] = t0.elapsed().as_secs_f64();
         if let Some(cb) = progress.as_mut() {
@@ -578,10 +574,7 @@ pub fn run_protocol(
             })?;
             let fraction = p.area_fraction(&test_shape.mesh);
             let mesh = Arc::new(p.mesh);
-            let sp = match &cache {
-                Some(c) => c.get_or_compute(&mesh, &params.spectrum)?,
-                None => compute_spectrum(&mesh, &params.spectrum)?,
-            };
+            let sp = spectrum_cached(&mesh, &params.spectrum, cache.as_ref())?;
             (mesh, Arc::new(sp), Some(p.kept), fraction)
         };
         // The part that is matched: the largest component of a scan in pieces, normalised by
@@ -597,10 +590,9 @@ pub fn run_protocol(
             _ => None,
         };
         let spectrum_mesh = filled.clone().unwrap_or_else(|| part.mesh.clone());
-        let part_spectrum = match (&part.kept, &filled, &cache) {
-            (None, None, _) => scan_spectrum,
-            (_, _, Some(c)) => Arc::new(c.get_or_compute(&spectrum_mesh, &params.spectrum)?),
-            (_, _, None) => Arc::new(compute_spectrum(&spectrum_mesh, &params.spectrum)?),
+        let part_spectrum = match (&part.kept, &filled) {
+            (None, None) => scan_spectrum,
+            _ => Arc::new(spectrum_cached(&spectrum_mesh, &params.spectrum, cache.as_ref())?),
         };
         let (part_spectrum, scale_ratio) = if kept.is_some() {
             let (sp, ratio) = if params.partial_scale {
@@ -674,7 +666,7 @@ pub fn run_protocol(
         let fields_used = fields_here.as_ref().unwrap_or(fields);
         let mirror_used = if all_columns { mirror_fields.as_ref() } else { mirror_here.as_ref() };
         let area = ref_prepared.mesh.surface_area();
-        let measure = |method: Method, map: &[usize]| -> Result<MethodErrors, Error> {
+        let measure = |method: Method, map: &[usize]| -> Result<MethodErrors, EvalError> {
             let (strict, _) = geodesic_errors(map, &evaluated, fields_used.as_ref(), None, area)?;
             let symmetric = match mirror_used {
                 Some(mf) => {

@@ -16,8 +16,7 @@ use super::Mesh;
 /// labels follow the smallest vertex of each component, a vertex used by no face is a component
 /// of its own.
 pub fn vertex_components(mesh: &Mesh) -> (Vec<usize>, Vec<usize>) {
-    let labels = crate::geodesic::topology::vertex_components(mesh);
-    let n_comp = labels.iter().copied().max().map_or(0, |m| m + 1);
+    let (labels, n_comp) = super::face_connectivity(mesh).labels();
     let mut sizes = vec![0usize; n_comp];
     for &l in &labels {
         sizes[l] += 1;

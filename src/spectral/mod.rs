@@ -24,7 +24,7 @@ mod laplacian;
 pub mod solver;
 mod spectrum;
 
-pub use cache::SpectrumCache;
+pub use cache::{spectrum_cached, SpectrumCache};
 pub use dense::dense_spectrum;
 pub use laplacian::{cotan_laplacian, cotan_weights, vertex_lumped_mass};
 pub use solver::{
