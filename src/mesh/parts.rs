@@ -172,8 +172,8 @@ pub fn fill_holes(mesh: &Mesh, max_perimeter: f64) -> (Mesh, usize) {
         }
         let mut c = [0.0; 3];
         for &v in &chain {
-            for d in 0..3 {
-                c[d] += mesh.vertices[v][d] / len as f64;
+            for (cd, x) in c.iter_mut().zip(mesh.vertices[v]) {
+                *cd += x / len as f64;
             }
         }
         let centre = vertices.len();
