@@ -144,10 +144,10 @@ pub struct EvalArgs {
     /// Normalise a partial scan by its own area instead of the reference's (an ablation).
     #[arg(long)]
     pub own_area: bool,
-    /// Leave the holes of a perturbed scan open (an ablation; by default holes of perimeter up
-    /// to 0.35·√area of the reference are closed before its spectrum is computed).
-    #[arg(long)]
-    pub keep_holes: bool,
+    /// Holes of a perturbed scan whose perimeter is at most this fraction of the reference's
+    /// √area are closed before its spectrum is computed (0: leave every hole open).
+    #[arg(long, default_value_t = 0.35, value_name = "F")]
+    pub fill_perimeter: f64,
     /// Augment every training set with perturbed copies of its shapes: `partial-view`,
     /// `holes:N:R` or `crop:R` (repeatable; --augment-copies copies of each shape per kind).
     #[arg(long, value_name = "KIND", value_parser = parse_augment)]
@@ -593,7 +593,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         skip_baseline: args.no_baseline,
         largest_component: !args.whole_scan,
         partial_scale: !args.own_area,
-        fill_holes: (!args.keep_holes).then_some(0.35),
+        fill_holes: (args.fill_perimeter > 0.0).then_some(args.fill_perimeter),
         augment: args.augment.iter().map(|&p| vec![p]).collect(),
         augment_copies: args.augment_copies,
         ..ProtocolParams::default()
