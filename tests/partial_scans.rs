@@ -141,3 +141,28 @@ fn the_perturb_command_writes_a_scan_and_its_vertex_map() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("expected N:R"));
 }
+
+#[test]
+fn train_learns_from_perturbed_copies_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("aug.sfm");
+    let o = Command::new(env!("CARGO_BIN_EXE_shapeforest"))
+        .args(["train", "--synthetic", "--vertices", "1500", "--trees", "2", "--augment", "partial-view"])
+        .args(["--augment", "holes:2:0.05", "--augment-copies", "2", "--out"])
+        .arg(&model)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    // 6 shapes + 6 × 2 kinds × 2 copies.
+    assert!(err.contains("24 perturbed copies") && err.contains("on 30 shapes"), "{err}");
+    assert!(model.is_file());
+    let bad = Command::new(env!("CARGO_BIN_EXE_shapeforest"))
+        .args(["train", "--synthetic", "--augment", "holes:3"])
+        .arg("--out")
+        .arg(dir.path().join("x.sfm"))
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("expected N:R"));
+}

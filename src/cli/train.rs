@@ -42,6 +42,14 @@ pub struct TrainArgs {
     /// Read per-label (`.vts`) maps as 0-based vertex indices.
     #[arg(long)]
     pub zero_based_vts: bool,
+    /// Learn partiality from examples: add --augment-copies seeded perturbed copies of every
+    /// training shape per kind: `partial-view`, `holes:N:R` or `crop:R` (repeatable). The
+    /// copies are matched as scans are (largest component, the whole shape's area).
+    #[arg(long, value_name = "KIND", value_parser = super::eval::parse_augment)]
+    pub augment: Vec<shapeforest::mesh::Perturbation>,
+    /// Perturbed copies per training shape and --augment kind.
+    #[arg(long, default_value_t = 4)]
+    pub augment_copies: usize,
     /// Leave out a shape that cannot be used (unreadable, wrong vertex count, a label map of
     /// the wrong length) with a warning, instead of failing.
     #[arg(long)]
@@ -271,11 +279,43 @@ pub fn run(args: TrainArgs) -> Result<()> {
     let meshes: Vec<&Mesh> = shapes.iter().map(|s| &s.mesh).collect();
     let spectra = spectra(&meshes, args.k, args.cache.as_deref(), "spectra")?;
     eprintln!("spectra of {} shapes in {:.1} s", shapes.len(), t0.elapsed().as_secs_f64());
-    let training: Vec<TrainingShape> = shapes
+    let mut augmented = Vec::new();
+    if !args.augment.is_empty() {
+        let t0 = Instant::now();
+        let cache = match args.cache.as_deref() {
+            Some(d) => Some(shapeforest::spectral::SpectrumCache::new(d.to_path_buf())?),
+            None => None,
+        };
+        let sp = shapeforest::spectral::SpectrumParams::new(args.k);
+        for (i, s) in shapes.iter().enumerate() {
+            for (kind_index, kind) in args.augment.iter().enumerate() {
+                for copy in 0..args.augment_copies {
+                    let seed = args.seed
+                        ^ ((i as u64) << 32 | (kind_index as u64) << 16 | copy as u64)
+                            .wrapping_mul(0x9e37_79b9_7f4a_7c15);
+                    augmented.push(
+                        shapeforest::forest::augmented_shape(
+                            &s.name,
+                            &s.mesh,
+                            &s.labels,
+                            std::slice::from_ref(kind),
+                            seed,
+                            &sp,
+                            cache.as_ref(),
+                        )
+                        .with_context(|| format!("cannot make a perturbed copy of {}", s.name))?,
+                    );
+                }
+            }
+        }
+        eprintln!("{} perturbed copies in {:.1} s", augmented.len(), t0.elapsed().as_secs_f64());
+    }
+    let mut training: Vec<TrainingShape> = shapes
         .into_iter()
         .zip(spectra)
         .map(|(s, spectrum)| TrainingShape { name: s.name, spectrum, labels: s.labels })
         .collect();
+    training.extend(augmented);
     let set = TrainingSet::new(training, n_labels)?;
     for (name, why) in set.rejected() {
         eprintln!("rejected {name}: {why}");
