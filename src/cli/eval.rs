@@ -119,21 +119,9 @@ pub struct EvalArgs {
     /// With --pairs or --protocol: at most this many pairs (a seeded sample, in file order).
     #[arg(long)]
     pub max_pairs: Option<usize>,
-    /// Perturb every test shape with N holes of Euclidean radius R·√area around seeded random
-    /// centres (`N:R`, e.g. `5:0.015`; repeatable).
-    #[arg(long, value_name = "N:R", value_parser = parse_holes)]
-    pub holes: Vec<Perturbation>,
-    /// Perturb every test shape into a single-view scan: only the faces visible from a seeded
-    /// random direction (front-facing, not grazing, not occluded).
-    #[arg(long)]
-    pub partial_view: bool,
-    /// Perturb every test shape by keeping only what lies within R·√area of a seeded point
-    /// (missing limbs).
-    #[arg(long, value_name = "R")]
-    pub crop: Option<f64>,
-    /// Perturb every test shape with Gaussian vertex noise of S mean edge lengths.
-    #[arg(long, value_name = "S")]
-    pub noise: Option<f64>,
+    /// How every test shape is perturbed (seeded per test shape).
+    #[command(flatten)]
+    pub perturb: super::perturb::PerturbFlags,
     /// Skip the WKS k-NN baseline (faster; its rows are left out).
     #[arg(long)]
     pub no_baseline: bool,
@@ -184,30 +172,8 @@ impl EvalArgs {
     /// The test-shape perturbations, in the order they are applied: crop, single view, holes,
     /// noise.
     pub(super) fn perturbations(&self) -> Vec<Perturbation> {
-        perturbation_list(self.crop, self.partial_view, &self.holes, self.noise)
+        self.perturb.list()
     }
-}
-
-/// The perturbations of the command-line flags, in the order they are applied: crop, single
-/// view, holes, noise.
-pub(super) fn perturbation_list(
-    crop: Option<f64>,
-    partial_view: bool,
-    holes: &[Perturbation],
-    noise: Option<f64>,
-) -> Vec<Perturbation> {
-    let mut out = Vec::new();
-    if let Some(radius) = crop {
-        out.push(Perturbation::Crop { radius });
-    }
-    if partial_view {
-        out.push(Perturbation::PARTIAL_VIEW);
-    }
-    out.extend(holes.iter().copied());
-    if let Some(sigma) = noise {
-        out.push(Perturbation::Noise { sigma });
-    }
-    out
 }
 
 /// The class of shapes to evaluate: shapes, mesh files (for the peer script), symmetry.

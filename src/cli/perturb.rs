@@ -17,27 +17,56 @@ pub struct PerturbArgs {
     /// the 0-based input vertex it is, so ground truth carries over.
     #[arg(long)]
     pub out: PathBuf,
-    /// N holes of Euclidean radius R·√area around seeded random centres (`N:R`; repeatable).
-    #[arg(long, value_name = "N:R", value_parser = super::eval::parse_holes)]
-    pub holes: Vec<Perturbation>,
-    /// Keep only the faces visible from a seeded random direction (a single-view scan).
-    #[arg(long)]
-    pub partial_view: bool,
-    /// Keep only what lies within R·√area of a seeded point of the surface.
-    #[arg(long, value_name = "R")]
-    pub crop: Option<f64>,
-    /// Gaussian vertex noise of S mean edge lengths.
-    #[arg(long, value_name = "S")]
-    pub noise: Option<f64>,
+    /// The perturbations.
+    #[command(flatten)]
+    pub perturb: PerturbFlags,
     /// Seed of every random choice.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }
 
+/// The perturbation flags, shared by `perturb` and `eval`; applied in the order crop, single
+/// view, holes, noise.
+#[derive(Debug, Args)]
+pub struct PerturbFlags {
+    /// N holes of Euclidean radius R·√area around seeded random points of the surface (`N:R`,
+    /// e.g. `5:0.015`; repeatable).
+    #[arg(long, value_name = "N:R", value_parser = super::eval::parse_holes)]
+    pub holes: Vec<Perturbation>,
+    /// A single-view scan: only the faces visible from a seeded random direction (front-facing,
+    /// not grazing, not occluded).
+    #[arg(long)]
+    pub partial_view: bool,
+    /// Keep only what lies within R·√area of a seeded point of the surface (missing limbs).
+    #[arg(long, value_name = "R")]
+    pub crop: Option<f64>,
+    /// Gaussian vertex noise of S mean edge lengths.
+    #[arg(long, value_name = "S")]
+    pub noise: Option<f64>,
+}
+
+impl PerturbFlags {
+    /// The perturbations, in the order they are applied.
+    pub fn list(&self) -> Vec<Perturbation> {
+        let mut out = Vec::new();
+        if let Some(radius) = self.crop {
+            out.push(Perturbation::Crop { radius });
+        }
+        if self.partial_view {
+            out.push(Perturbation::PARTIAL_VIEW);
+        }
+        out.extend(self.holes.iter().copied());
+        if let Some(sigma) = self.noise {
+            out.push(Perturbation::Noise { sigma });
+        }
+        out
+    }
+}
+
 /// Runs `shapeforest perturb`.
 pub fn run(args: PerturbArgs) -> Result<()> {
     let mesh = read_mesh(&args.mesh).with_context(|| format!("cannot read {}", args.mesh.display()))?;
-    let list = super::eval::perturbation_list(args.crop, args.partial_view, &args.holes, args.noise);
+    let list = args.perturb.list();
     let p = perturb(&mesh, &list, args.seed).with_context(|| format!("{}", args.mesh.display()))?;
     write_mesh(&args.out, &p.mesh).with_context(|| format!("cannot write {}", args.out.display()))?;
     let mut kept = String::with_capacity(8 * p.kept.len());
