@@ -190,7 +190,7 @@ property float z\nend_header\n0 0 0\n1 1 1\n"
         let err = parse_mesh(bytes, format).unwrap_err();
         assert_eq!(
             err.to_string(),
-            "point clouds are not supported: the mesh has 2 vertices but no faces",
+            "a point cloud needs at least 4 points, this one has 2",
             "{format}"
         );
     }

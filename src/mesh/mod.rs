@@ -8,16 +8,24 @@
 //! # Reading
 //! [`read_mesh`] / [`read_mesh_with_report`] read a file by extension: OFF (`.off`, with
 //! `COFF`/`NOFF` variants, vertex colours and polygons), OBJ (`.obj`), PLY (`.ply`, ascii and
-//! binary), TOSCA pairs (`.vert` + `.tri`), each optionally gzip-compressed (`.gz`). The
-//! per-format functions [`parse_off`], [`parse_obj`], [`parse_ply`], [`parse_tosca`] (and
-//! [`parse_mesh`], [`read_mesh_from`]) read from memory or any reader. Polygons are split into
-//! triangle fans.
+//! binary), TOSCA pairs (`.vert` + `.tri`), point clouds (`.xyz`), each optionally
+//! gzip-compressed (`.gz`). The per-format functions [`parse_off`], [`parse_obj`], [`parse_ply`],
+//! [`parse_tosca`], [`parse_xyz_cloud`] (and [`parse_mesh`], [`read_mesh_from`]) read from
+//! memory or any reader. Polygons are split into triangle fans.
 //!
 //! Readers never panic, whatever the bytes: malformed data gives a [`MeshError`] naming the
 //! file, the line (or PLY element) and what was expected, e.g.
 //! `cat.off: line 17: expected 3 coordinates, found 2`. Counts in headers are never trusted
-//! for allocation beyond what the data's size allows. Point clouds (vertices, no faces) are
-//! rejected with [`MeshError::PointCloud`].
+//! for allocation beyond what the data's size allows.
+//!
+//! # Point clouds
+//! Data with vertices and no faces (`.xyz`, or an OFF/OBJ/PLY file without faces) is a point
+//! cloud: the mesh read from it has the points as vertices, in file order, and the distinct
+//! triangles of their local tangent-plane Delaunay triangulations as faces
+//! ([`point_cloud_mesh`], Sharp & Crane 2020), a non-manifold surface on which the spectral
+//! and geodesic code use the tufted intrinsic-Delaunay Laplacian. The report says so with
+//! [`MeshWarning::PointCloud`]. [`Mesh::new`] itself still refuses vertices without faces
+//! ([`MeshError::PointCloud`]).
 //!
 //! Problems that do not prevent use (zero-area faces, non-manifold edges, unreferenced
 //! vertices, duplicate faces, triangulated polygons, skipped content) are returned as
@@ -29,6 +37,7 @@
 //! print coordinates in shortest round-trip form, so write-then-read is bit-exact in every
 //! format.
 
+mod cloud;
 mod error;
 mod io;
 mod obj;
@@ -38,7 +47,9 @@ mod report;
 mod summary;
 mod text;
 mod tosca;
+mod xyz;
 
+pub use cloud::{local_triangulation, point_cloud_mesh, LocalTriangulation, DEFAULT_NEIGHBOURS, MIN_POINTS};
 pub use error::{Location, MeshError};
 pub use io::{
     parse_mesh, read_file_limited, read_mesh, read_mesh_from, read_mesh_limited, read_mesh_with_report,
@@ -51,6 +62,7 @@ pub use report::{MeshFormat, MeshReport, MeshWarning};
 pub use summary::{is_zero_area, ComponentSize, MeshSummary};
 pub use text::MAX_DECOMPRESSED_BYTES;
 pub use tosca::{parse_tosca, parse_tri, parse_vert, write_tosca};
+pub use xyz::{parse_xyz_cloud, write_xyz};
 
 use serde::{Deserialize, Serialize};
 
