@@ -49,7 +49,9 @@ mod text;
 mod tosca;
 mod xyz;
 
-pub use cloud::{local_triangulation, point_cloud_mesh, LocalTriangulation, DEFAULT_NEIGHBOURS, MIN_POINTS};
+pub use cloud::{
+    local_triangulation, point_cloud_mesh, LocalTriangulation, DEFAULT_NEIGHBOURS, MIN_POINTS, POINT_CLOUD_COVER,
+};
 pub use error::{Location, MeshError};
 pub use io::{
     parse_mesh, read_file_limited, read_mesh, read_mesh_from, read_mesh_limited, read_mesh_with_report,
@@ -76,6 +78,13 @@ pub struct Mesh {
     pub vertices: Vec<[f64; 3]>,
     /// Triangles as 0-based vertex indices.
     pub faces: Vec<[usize; 3]>,
+    /// Empty for an ordinary mesh. For the surface of a point cloud ([`point_cloud_mesh`]): how
+    /// many of the local triangulations (fans) hold each face; they cover the surface
+    /// [`POINT_CLOUD_COVER`] times, so face `f` stands for `face_multiplicity[f] / 3` of its area.
+    /// Ignored (every face counts once) when its length is not the number of faces, e.g. after
+    /// faces were added or removed by hand.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub face_multiplicity: Vec<u32>,
 }
 
 impl Mesh {
@@ -108,7 +117,14 @@ impl Mesh {
                 return Err(MeshError::RepeatedVertexInFace { face: f, indices: *tri });
             }
         }
-        Ok(Self { vertices, faces })
+        Ok(Self { vertices, faces, face_multiplicity: Vec::new() })
+    }
+
+    /// The face multiplicities of a point-cloud surface (see [`Mesh::face_multiplicity`]), or
+    /// `None` for an ordinary mesh.
+    pub fn point_cloud_multiplicity(&self) -> Option<&[u32]> {
+        (!self.face_multiplicity.is_empty() && self.face_multiplicity.len() == self.faces.len())
+            .then_some(&self.face_multiplicity[..])
     }
 
     /// Number of vertices.
@@ -135,9 +151,15 @@ impl Mesh {
             .collect()
     }
 
-    /// Total surface area.
+    /// Total surface area (of a point-cloud surface: each face weighted by its multiplicity
+    /// over [`POINT_CLOUD_COVER`], the area the local triangulations cover).
     pub fn surface_area(&self) -> f64 {
-        self.face_areas().iter().sum()
+        match self.point_cloud_multiplicity() {
+            None => self.face_areas().iter().sum(),
+            Some(m) => {
+                self.face_areas().iter().zip(m).map(|(a, &k)| a * k as f64).sum::<f64>() / POINT_CLOUD_COVER
+            }
+        }
     }
 
     /// Axis-aligned bounding box `(min, max)`.
@@ -169,6 +191,9 @@ impl Mesh {
                 h.write_u64(i as u64);
             }
         }
+        for &m in &self.face_multiplicity {
+            h.write_u64(m as u64);
+        }
         h.finish()
     }
 
@@ -177,6 +202,7 @@ impl Mesh {
         Mesh {
             vertices: self.vertices.iter().map(|p| [p[0] * factor, p[1] * factor, p[2] * factor]).collect(),
             faces: self.faces.clone(),
+            face_multiplicity: self.face_multiplicity.clone(),
         }
     }
 }

@@ -6,7 +6,7 @@ use faer::sparse::{SparseColMat, Triplet};
 use serde::{Deserialize, Serialize};
 
 use super::tufted::{tufted_laplacian, TuftedParams};
-use crate::mesh::{cross, dot, norm, sub, Mesh};
+use crate::mesh::{cross, dot, norm, sub, Mesh, POINT_CLOUD_COVER};
 
 /// Which discrete Laplacian [`surface_operator`] chose.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -70,6 +70,20 @@ pub fn has_non_manifold_edge(mesh: &Mesh) -> bool {
 /// assert_eq!(op.kind, LaplacianKind::Cotan);
 /// ```
 pub fn surface_operator(mesh: &Mesh) -> SurfaceOperator {
+    if let Some(multiplicity) = mesh.point_cloud_multiplicity() {
+        // the paper's point-cloud Laplacian: every fan's triangle, so a face found in m fans
+        // enters m times, and the result divided by the cover
+        let soup: Vec<[usize; 3]> =
+            mesh.faces.iter().zip(multiplicity).flat_map(|(f, &m)| std::iter::repeat_n(*f, m as usize)).collect();
+        if let Ok(t) = tufted_laplacian(&mesh.vertices, &soup, TuftedParams::default()) {
+            let s = 1.0 / POINT_CLOUD_COVER;
+            return SurfaceOperator {
+                kind: LaplacianKind::Tufted,
+                weights: t.weights.into_iter().map(|(i, j, w)| (i, j, w * s)).collect(),
+                mass: t.mass.into_iter().map(|m| m * s).collect(),
+            };
+        }
+    }
     if has_non_manifold_edge(mesh) {
         // A valid Mesh can only fail here when every edge has length zero: then the cotan
         // operator (empty) lets the callers report the zero area.
