@@ -39,7 +39,7 @@ use shapeforest::{
         write_curves_csv, ErrorSummary,
     },
     forest::RandomForest,
-    mesh::{read_mesh, write_mesh},
+    mesh::{perturbations_name, read_mesh, write_mesh, Perturbation},
     spectral::{compute_spectrum, SpectrumCache, SpectrumParams},
     synth::{creature_family, CreatureParams},
 };
@@ -119,6 +119,100 @@ pub struct EvalArgs {
     /// With --pairs or --protocol: at most this many pairs (a seeded sample, in file order).
     #[arg(long)]
     pub max_pairs: Option<usize>,
+    /// Perturb every test shape with N holes of Euclidean radius R·√area around seeded random
+    /// centres (`N:R`, e.g. `5:0.015`; repeatable).
+    #[arg(long, value_name = "N:R", value_parser = parse_holes)]
+    pub holes: Vec<Perturbation>,
+    /// Perturb every test shape into a single-view scan: only the faces visible from a seeded
+    /// random direction (front-facing, not grazing, not occluded).
+    #[arg(long)]
+    pub partial_view: bool,
+    /// Perturb every test shape by keeping only what lies within R·√area of a seeded point
+    /// (missing limbs).
+    #[arg(long, value_name = "R")]
+    pub crop: Option<f64>,
+    /// Perturb every test shape with Gaussian vertex noise of S mean edge lengths.
+    #[arg(long, value_name = "S")]
+    pub noise: Option<f64>,
+    /// Turn every test shape into a point cloud: faces dropped, a seeded random FRACTION of its
+    /// vertices kept (default 1: all), surface rebuilt from local triangulations. Applied
+    /// after the other perturbations.
+    #[arg(long, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "1")]
+    pub point_cloud: Option<f64>,
+    /// Skip the WKS k-NN baseline (faster; its rows are left out).
+    #[arg(long)]
+    pub no_baseline: bool,
+    /// Match every component of a perturbed scan together instead of its largest component
+    /// (an ablation of the partial-scan handling).
+    #[arg(long)]
+    pub whole_scan: bool,
+    /// Normalise a partial scan by its own area instead of the reference's (an ablation).
+    #[arg(long)]
+    pub own_area: bool,
+    /// Augment every training set with perturbed copies of its shapes: `partial-view`,
+    /// `holes:N:R` or `crop:R` (repeatable; --augment-copies copies of each shape per kind).
+    #[arg(long, value_name = "KIND", value_parser = parse_augment)]
+    pub augment: Vec<Perturbation>,
+    /// Perturbed copies per training shape and --augment kind.
+    #[arg(long, default_value_t = 4)]
+    pub augment_copies: usize,
+}
+
+/// A kind of `--augment`.
+pub(super) fn parse_augment(text: &str) -> Result<Perturbation, String> {
+    if text == "partial-view" {
+        return Ok(Perturbation::PARTIAL_VIEW);
+    }
+    if let Some(rest) = text.strip_prefix("holes:") {
+        return parse_holes(rest);
+    }
+    if let Some(r) = text.strip_prefix("crop:") {
+        let radius = r.parse().map_err(|_| format!("the crop radius {r:?} is not a number"))?;
+        return Ok(Perturbation::Crop { radius });
+    }
+    Err(format!("expected partial-view, holes:N:R or crop:R, got {text:?}"))
+}
+
+/// `N:R` of `--holes`.
+pub(super) fn parse_holes(text: &str) -> Result<Perturbation, String> {
+    let (n, r) = text.split_once(':').ok_or_else(|| format!("expected N:R (e.g. 5:0.015), got {text:?}"))?;
+    let count = n.trim().parse().map_err(|_| format!("the number of holes {n:?} is not a whole number"))?;
+    let radius = r.trim().parse().map_err(|_| format!("the radius {r:?} is not a number"))?;
+    Ok(Perturbation::Holes { count, radius })
+}
+
+impl EvalArgs {
+    /// The test-shape perturbations, in the order they are applied: crop, single view, holes,
+    /// noise.
+    pub(super) fn perturbations(&self) -> Vec<Perturbation> {
+        let mut list = perturbation_list(self.crop, self.partial_view, &self.holes, self.noise);
+        if let Some(fraction) = self.point_cloud {
+            list.push(Perturbation::PointCloud { fraction });
+        }
+        list
+    }
+}
+
+/// The perturbations of the command-line flags, in the order they are applied: crop, single
+/// view, holes, noise.
+pub(super) fn perturbation_list(
+    crop: Option<f64>,
+    partial_view: bool,
+    holes: &[Perturbation],
+    noise: Option<f64>,
+) -> Vec<Perturbation> {
+    let mut out = Vec::new();
+    if let Some(radius) = crop {
+        out.push(Perturbation::Crop { radius });
+    }
+    if partial_view {
+        out.push(Perturbation::PARTIAL_VIEW);
+    }
+    out.extend(holes.iter().copied());
+    if let Some(sigma) = noise {
+        out.push(Perturbation::Noise { sigma });
+    }
+    out
 }
 
 /// The class of shapes to evaluate: shapes, mesh files (for the peer script), symmetry.
@@ -500,6 +594,12 @@ pub fn run(args: EvalArgs) -> Result<()> {
         eval_points: args.eval_points,
         forest: RandomForest::params().n_trees(args.trees).seed(args.seed),
         cache_dir: (!args.no_cache).then(|| args.cache.clone()),
+        perturbations: args.perturbations(),
+        skip_baseline: args.no_baseline,
+        largest_component: !args.whole_scan,
+        partial_scale: !args.own_area,
+        augment: args.augment.iter().map(|&p| vec![p]).collect(),
+        augment_copies: args.augment_copies,
         ..ProtocolParams::default()
     };
     let n_labels = class.shapes[0].truth.len();
@@ -523,6 +623,12 @@ pub fn run(args: EvalArgs) -> Result<()> {
     );
     if class.symmetry.is_none() {
         println!("no symmetry map for this class: strict errors only");
+    }
+    if !params.perturbations.is_empty() {
+        println!(
+            "test shapes perturbed: {} (seeded per test shape; errors at the evaluated points the scan keeps)",
+            perturbations_name(&params.perturbations)
+        );
     }
     let pb = bar(args.quiet);
     let mut on_event = |e: ProtocolEvent<'_>| match e {
@@ -571,12 +677,59 @@ fn format_table(report: &ProtocolReport) -> String {
         report.tests.len(),
         n_points
     );
+    if let Some(first) = report.tests.first().filter(|t| t.perturbation != "none") {
+        let n_eval = report.eval_labels.len() * report.tests.len();
+        let area: f64 = report.tests.iter().map(|t| t.area_fraction).sum::<f64>() / report.tests.len() as f64;
+        let verts: usize = report.tests.iter().map(|t| t.scan_vertices).sum::<usize>() / report.tests.len();
+        let _ = writeln!(
+            s,
+            "perturbation {}: scans keep {:.1} % of the surface on average ({verts} vertices), {n_points} of \
+             {n_eval} evaluated points present",
+            first.perturbation,
+            100.0 * area
+        );
+        // The regularised forest on the matched part (the largest component) alone.
+        let mut part = Vec::new();
+        let mut part_sym = Vec::new();
+        for t in &report.tests {
+            if let Some(m) = t.errors(Method::ForestRegularized) {
+                for (j, &inside) in t.in_matched_part.iter().enumerate() {
+                    if inside {
+                        part.push(m.strict[j]);
+                        if let Some(y) = &m.symmetric {
+                            part_sym.push(y[j]);
+                        }
+                    }
+                }
+            }
+        }
+        let (st, sy) = (ErrorSummary::of(&part), ErrorSummary::of(&part_sym));
+        let part_v: usize =
+            report.tests.iter().map(|t| t.matched_part_vertices).sum::<usize>() / report.tests.len();
+        let _ = writeln!(
+            s,
+            "forest+reg on the matched part (largest component, {part_v} vertices on average): {} points, \
+             {} ≤0.05, {} ≤0.1, mean {:.4}{}",
+            part.len(),
+            pct(st.within_005),
+            pct(st.within_010),
+            st.mean,
+            if part_sym.is_empty() {
+                String::new()
+            } else {
+                format!("; flips allowed {} ≤0.05", pct(sy.within_005))
+            }
+        );
+    }
     let _ = write!(s, "{:<13} | {:>7} {:>7} {:>7}", "method", "≤0.05", "≤0.1", "mean");
     if report.has_symmetry {
         let _ = write!(s, " | {:>11} {:>10} {:>8}", "sym ≤0.05", "sym ≤0.1", "sym mean");
     }
     s.push('\n');
     for m in Method::ALL {
+        if report.tests.iter().all(|t| t.errors(m).is_none()) {
+            continue;
+        }
         let (st, sy) = report.summary(m);
         let _ = write!(
             s,
@@ -648,7 +801,7 @@ fn json_str(s: &str) -> String {
 
 fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usize) -> Result<()> {
     let mut csv = String::from(
-        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median\n",
+        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction\n",
     );
     for t in &report.tests {
         for m in &t.methods {
@@ -656,13 +809,16 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
             let sy = m.symmetric.as_ref().map(|y| ErrorSummary::of(y));
             let _ = writeln!(
                 csv,
-                "{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{:.6}",
                 report.shape_names[t.test],
                 report.shape_names[t.reference],
                 m.method.name(),
                 st.n,
                 summary_cols(Some(st)),
-                summary_cols(sy)
+                summary_cols(sy),
+                t.perturbation,
+                t.scan_vertices,
+                t.area_fraction
             );
         }
     }
@@ -710,12 +866,25 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
     for (i, t) in report.tests.iter().enumerate() {
         let test = &class.shapes[t.test];
         let reference = &class.shapes[t.reference];
-        let ev_test: Vec<usize> = report.eval_labels.iter().map(|&k| test.truth[k]).collect();
-        let ev_ref: Vec<usize> = report.eval_labels.iter().map(|&k| reference.truth[k]).collect();
-        let ev_mirror = match &class.symmetry {
-            Some(sym) => {
-                json_list(&report.eval_labels.iter().map(|&k| reference.truth[sym[k]]).collect::<Vec<_>>())
+        // A perturbed scan is written beside the results; the peer maps it and is scored at the
+        // evaluated points it keeps.
+        let (test_file, labels, ev_test) = match &t.scan {
+            Some(scan) => {
+                let dir = out.join("scans");
+                std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+                let path = dir.join(format!("{}.{}.off", test.name, t.perturbation));
+                write_mesh(&path, scan).with_context(|| format!("cannot write {}", path.display()))?;
+                (path, t.labels.clone(), t.evaluated.clone())
             }
+            None => (
+                class.files[t.test].clone(),
+                report.eval_labels.clone(),
+                report.eval_labels.iter().map(|&k| test.truth[k]).collect(),
+            ),
+        };
+        let ev_ref: Vec<usize> = labels.iter().map(|&k| reference.truth[k]).collect();
+        let ev_mirror = match &class.symmetry {
+            Some(sym) => json_list(&labels.iter().map(|&k| reference.truth[sym[k]]).collect::<Vec<_>>()),
             None => "null".into(),
         };
         let _ = write!(
@@ -723,7 +892,7 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
             "    {{\"test\": {}, \"reference\": {}, \"test_mesh\": {}, \"reference_mesh\": {},\n     \"eval_test_vertices\": {},\n     \"eval_reference_vertices\": {},\n     \"eval_reference_mirror_vertices\": {}}}{}\n",
             json_str(&test.name),
             json_str(&reference.name),
-            json_str(&abs(&class.files[t.test]).display().to_string()),
+            json_str(&abs(&test_file).display().to_string()),
             json_str(&abs(&class.files[t.reference]).display().to_string()),
             json_list(&ev_test),
             json_list(&ev_ref),

@@ -7,6 +7,7 @@ mod eval;
 mod eval_pairs;
 mod info;
 mod match_cmd;
+mod perturb;
 mod predict;
 mod run;
 mod train;
@@ -42,6 +43,9 @@ pub enum Command {
     Eval(eval::EvalArgs),
     /// Match a mesh to a reference with a trained model; write the map and coloured meshes.
     Match(match_cmd::MatchArgs),
+    /// Turn a clean mesh into a scan-like one (holes, a single view, a crop, noise), keeping its
+    /// ground truth through a vertex map.
+    Perturb(perturb::PerturbArgs),
     /// Write the interactive view.html of a match result (a `match` output or a daemon's matched/NAME/).
     View(view::ViewArgs),
     /// Run a pipeline file (pipelines/*.toml): batch training, matching, evaluation or a daemon.
@@ -74,6 +78,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(args) => bench::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Match(args) => match_cmd::run(args),
+        Command::Perturb(args) => perturb::run(args),
         Command::View(args) => view::run(args),
         Command::Run(args) => run::run(args),
         Command::Watch(args) => run::watch(args),

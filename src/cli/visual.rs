@@ -62,19 +62,19 @@ pub fn write_eval_pages(
     for t in &report.tests {
         let Some(m) = t.errors(Method::ForestRegularized) else { continue };
         let (test, reference) = (&shapes[t.test], &shapes[t.reference]);
-        if m.map.len() != test.mesh.n_vertices() {
+        let scan = t.scan.as_deref().unwrap_or(&test.mesh);
+        if m.map.len() != scan.n_vertices() || t.evaluated.len() != m.strict.len() {
             continue; // a report read back without maps
         }
-        // The reference's vertex for each label is truth[label]; the test's evaluated vertices.
-        let evaluated: Vec<usize> = report.eval_labels.iter().map(|&k| test.truth[k]).collect();
+        let evaluated = &t.evaluated;
         let errors = &m.strict;
         let pair = ViewPair {
-            scan: &test.mesh,
+            scan,
             scan_name: &test.name,
             reference: &reference.mesh,
             reference_name: &reference.name,
             map: &m.map,
-            errors: Some(PointErrors { vertices: &evaluated, errors }),
+            errors: Some(PointErrors { vertices: evaluated, errors }),
         };
         let params = SnapshotParams::default();
         let png = snapshot_png(&pair, None, &params)?;

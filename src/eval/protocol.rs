@@ -47,10 +47,12 @@ use serde::{Deserialize, Serialize};
 use super::{geodesic_errors, CurveSeries, ErrorSummary, EvalError};
 use crate::{
     descriptor::WksParams,
-    forest::{Prediction, RandomForest, RandomForestParams, TrainingSet, TrainingShape, WksKnn},
+    forest::{
+        augmented_shape, Prediction, RandomForest, RandomForestParams, TrainingSet, TrainingShape, WksKnn,
+    },
     geodesic::{HeatMethodSolver, HeatParams},
-    mesh::Mesh,
-    regularizer::{regularize, PreparedShape, RegularizerParams},
+    mesh::{extend_map_by_nearest, largest_component, perturb, perturbations_name, Mesh, Perturbation},
+    regularizer::{normalising_area, regularize, PreparedShape, RegularizerParams},
     spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
     Error,
 };
@@ -100,6 +102,25 @@ pub struct ProtocolParams {
     pub cache_dir: Option<PathBuf>,
     /// Steps of the cumulative curves (default 100).
     pub curve_steps: usize,
+    /// Perturbations applied, in order, to every test shape before it is matched (holes, a
+    /// single-view scan, a crop, noise; see [`crate::mesh::perturb`]), seeded per test shape.
+    /// Errors are measured only at the evaluated points the perturbed scan still has.
+    pub perturbations: Vec<Perturbation>,
+    /// Skip the WKS k-NN baseline (its rows are then absent from the report).
+    pub skip_baseline: bool,
+    /// Match only the largest connected component of a scan in pieces; the vertices of the
+    /// other pieces take the match of their nearest matched vertex (default `true`; see
+    /// [`crate::mesh::largest_component`]).
+    pub largest_component: bool,
+    /// Normalise an open, partial scan by the reference's area instead of its own (default
+    /// `true`; see [`crate::regularizer::normalising_area`]).
+    pub partial_scale: bool,
+    /// Training-set augmentation: for every kind (a perturbation list), `augment_copies`
+    /// seeded perturbed copies of each training shape join the training set (see
+    /// [`crate::forest::augmented_shape`]). Default: none.
+    pub augment: Vec<Vec<Perturbation>>,
+    /// Copies per training shape and augmentation kind (default 4).
+    pub augment_copies: usize,
 }
 
 impl Default for ProtocolParams {
@@ -116,6 +137,12 @@ impl Default for ProtocolParams {
             eval_heat: HeatParams::default(),
             cache_dir: None,
             curve_steps: 100,
+            perturbations: Vec::new(),
+            skip_baseline: false,
+            largest_component: true,
+            partial_scale: true,
+            augment: Vec::new(),
+            augment_copies: 4,
         }
     }
 }
@@ -226,6 +253,37 @@ pub struct TestResult {
     pub methods: Vec<MethodErrors>,
     /// Time per stage.
     pub timings: TestTimings,
+    /// The perturbation of the test shape (`"none"`), see [`ProtocolParams::perturbations`].
+    #[serde(default)]
+    pub perturbation: String,
+    /// Vertices of the scan that was matched (the perturbed test shape).
+    #[serde(default)]
+    pub scan_vertices: usize,
+    /// Fraction of the test shape's area present in the scan (1 without perturbation).
+    #[serde(default)]
+    pub area_fraction: f64,
+    /// Evaluated points present in the scan (the errors are theirs).
+    #[serde(default)]
+    pub present_points: usize,
+    /// The scan vertex of each error (in the order of [`MethodErrors::strict`]).
+    #[serde(default)]
+    pub evaluated: Vec<usize>,
+    /// The label of each error (a subset of [`ProtocolReport::eval_labels`]).
+    #[serde(default)]
+    pub labels: Vec<usize>,
+    /// Whether each error's point lies in the part of the scan that was matched (its largest
+    /// component; all `true` for a connected scan).
+    #[serde(default)]
+    pub in_matched_part: Vec<bool>,
+    /// Vertices of the matched part of the scan.
+    #[serde(default)]
+    pub matched_part_vertices: usize,
+    /// The area the scan was normalised by, relative to its own (1: its own area).
+    #[serde(default)]
+    pub scale_ratio: f64,
+    /// The perturbed scan (`None` without perturbation: the scan is the test shape).
+    #[serde(skip)]
+    pub scan: Option<Arc<Mesh>>,
 }
 
 impl TestResult {
@@ -449,6 +507,25 @@ pub fn run_protocol(
                     labels: labels_of(&shapes[s]),
                 });
             }
+            for &s in &key {
+                let labels = labels_of(&shapes[s]);
+                for (kind_index, kind) in params.augment.iter().enumerate() {
+                    for copy in 0..params.augment_copies {
+                        let seed = params.seed
+                            ^ ((s as u64) << 32 | (kind_index as u64) << 16 | copy as u64)
+                                .wrapping_mul(0x9e37_79b9_7f4a_7c15);
+                        members.push(augmented_shape(
+                            &shapes[s].name,
+                            &shapes[s].mesh,
+                            &labels,
+                            kind,
+                            seed,
+                            &params.spectrum,
+                            cache.as_ref(),
+                        )?);
+                    }
+                }
+            }
             let set = TrainingSet::new(members, n_labels)?;
             let t0 = Instant::now();
             let forest = forest_params.fit(&set)?;
@@ -485,10 +562,53 @@ pub fn run_protocol(
         }
         let (_, ref_prepared, fields, mirror_fields) =
             reference_cache.as_ref().ok_or_else(|| invalid("internal: reference missing".into()))?;
+        // The scan: the test shape, perturbed when asked, with its vertex map to the test shape.
+        let (scan_mesh, scan_spectrum, kept, area_fraction) = if params.perturbations.is_empty() {
+            (test_shape.mesh.clone(), spectrum_of(*t)?, None, 1.0)
+        } else {
+            stage(&mut progress, "perturb");
+            let seed = params.seed ^ (*t as u64 + 1).wrapping_mul(0x2545_f491_4f6c_dd1d);
+            let p = perturb(&test_shape.mesh, &params.perturbations, seed).map_err(|e| {
+                invalid(format!("{}: {}: {e}", test_shape.name, perturbations_name(&params.perturbations)))
+            })?;
+            let fraction = p.area_fraction(&test_shape.mesh);
+            let mesh = Arc::new(p.mesh);
+            let sp = match &cache {
+                Some(c) => c.get_or_compute(&mesh, &params.spectrum)?,
+                None => compute_spectrum(&mesh, &params.spectrum)?,
+            };
+            (mesh, Arc::new(sp), Some(p.kept), fraction)
+        };
+        // The part that is matched: the largest component of a scan in pieces, normalised by
+        // the reference's area when it is an open part of a body.
+        let part =
+            if params.largest_component && kept.is_some() { largest_component(&scan_mesh) } else { None };
+        let (part_mesh, part_spectrum, part_kept) = match part {
+            Some((mesh, part_kept)) => {
+                let mesh = Arc::new(mesh);
+                let sp = match &cache {
+                    Some(c) => c.get_or_compute(&mesh, &params.spectrum)?,
+                    None => compute_spectrum(&mesh, &params.spectrum)?,
+                };
+                (mesh, Arc::new(sp), Some(part_kept))
+            }
+            None => (scan_mesh.clone(), scan_spectrum, None),
+        };
+        let (part_spectrum, scale_ratio) = if params.partial_scale && kept.is_some() {
+            let area = normalising_area(&part_mesh, shapes[reference].mesh.surface_area());
+            let ratio = area / part_spectrum.area;
+            (Arc::new(part_spectrum.renormalised(area)), ratio)
+        } else {
+            (part_spectrum, 1.0)
+        };
         let t0 = Instant::now();
-        let test_prepared =
-            PreparedShape::new(test_shape.mesh.clone(), spectrum_of(*t)?, params.regularizer.heat)?;
+        let test_prepared = PreparedShape::new(part_mesh.clone(), part_spectrum, params.regularizer.heat)?;
         timings.prepare_s += t0.elapsed().as_secs_f64();
+        // A map on the part, as a map on the whole scan.
+        let on_scan = |map: Vec<usize>| match &part_kept {
+            Some(k) => extend_map_by_nearest(&scan_mesh, k, &map),
+            None => map,
+        };
 
         stage(&mut progress, "predict");
         let t0 = Instant::now();
@@ -501,21 +621,53 @@ pub fn run_protocol(
         let dense = regularize(&test_prepared, ref_prepared, &prediction, Some(table), &params.regularizer)?;
         timings.regularize_s = t0.elapsed().as_secs_f64();
 
-        stage(&mut progress, "baseline");
-        let k = prediction.mean_support().round().max(1.0) as usize;
-        let t0 = Instant::now();
-        let knn_prediction = knn.predict(&test_prepared.spectrum, k)?;
-        timings.knn_predict_s = t0.elapsed().as_secs_f64();
-        let t0 = Instant::now();
-        let knn_dense =
-            regularize(&test_prepared, ref_prepared, &knn_prediction, Some(table), &params.regularizer)?;
-        timings.knn_regularize_s = t0.elapsed().as_secs_f64();
+        let baseline = if params.skip_baseline {
+            None
+        } else {
+            stage(&mut progress, "baseline");
+            let k = prediction.mean_support().round().max(1.0) as usize;
+            let t0 = Instant::now();
+            let knn_prediction = knn.predict(&test_prepared.spectrum, k)?;
+            timings.knn_predict_s = t0.elapsed().as_secs_f64();
+            let t0 = Instant::now();
+            let knn_dense =
+                regularize(&test_prepared, ref_prepared, &knn_prediction, Some(table), &params.regularizer)?;
+            timings.knn_regularize_s = t0.elapsed().as_secs_f64();
+            Some((knn_prediction, knn_dense))
+        };
 
-        let evaluated: Vec<usize> = eval_labels.iter().map(|&k| test_shape.truth[k]).collect();
+        // Evaluated points present in the scan, as scan vertices, and their columns.
+        let scan_index = kept.as_ref().map(|k| {
+            let mut idx = vec![None; test_shape.mesh.n_vertices()];
+            for (new, &old) in k.iter().enumerate() {
+                idx[old] = Some(new);
+            }
+            idx
+        });
+        let (columns, evaluated): (Vec<usize>, Vec<usize>) = eval_labels
+            .iter()
+            .enumerate()
+            .filter_map(|(j, &k)| {
+                let v = test_shape.truth[k];
+                match &scan_index {
+                    Some(idx) => idx[v].map(|s| (j, s)),
+                    None => Some((j, v)),
+                }
+            })
+            .unzip();
+        let all_columns = columns.len() == eval_labels.len();
+        let pick = |m: &Mat<f64>| Mat::from_fn(m.nrows(), columns.len(), |r, c| m[(r, columns[c])]);
+        let fields_here = if all_columns { None } else { Some(pick(fields)) };
+        let mirror_here = match (all_columns, mirror_fields) {
+            (false, Some(mf)) => Some(pick(mf)),
+            _ => None,
+        };
+        let fields_used = fields_here.as_ref().unwrap_or(fields);
+        let mirror_used = if all_columns { mirror_fields.as_ref() } else { mirror_here.as_ref() };
         let area = ref_prepared.mesh.surface_area();
         let measure = |method: Method, map: &[usize]| -> Result<MethodErrors, Error> {
-            let (strict, _) = geodesic_errors(map, &evaluated, fields.as_ref(), None, area)?;
-            let symmetric = match mirror_fields {
+            let (strict, _) = geodesic_errors(map, &evaluated, fields_used.as_ref(), None, area)?;
+            let symmetric = match mirror_used {
                 Some(mf) => {
                     let (mirrored, _) = geodesic_errors(map, &evaluated, mf.as_ref(), None, area)?;
                     Some(strict.iter().zip(&mirrored).map(|(a, b)| a.min(*b)).collect())
@@ -524,13 +676,25 @@ pub fn run_protocol(
             };
             Ok(MethodErrors { method, strict, symmetric, map: map.to_vec() })
         };
-        let raw = |p: &Prediction| raw_map(p, table);
-        let methods = vec![
+        let raw = |p: &Prediction| on_scan(raw_map(p, table));
+        let mut methods = vec![
             measure(Method::ForestRaw, &raw(&prediction))?,
-            measure(Method::ForestRegularized, &dense.map)?,
-            measure(Method::WksKnnRaw, &raw(&knn_prediction))?,
-            measure(Method::WksKnnRegularized, &knn_dense.map)?,
+            measure(Method::ForestRegularized, &on_scan(dense.map.clone()))?,
         ];
+        if let Some((knn_prediction, knn_dense)) = &baseline {
+            methods.push(measure(Method::WksKnnRaw, &raw(knn_prediction))?);
+            methods.push(measure(Method::WksKnnRegularized, &on_scan(knn_dense.map.clone()))?);
+        }
+        let in_matched_part = match &part_kept {
+            Some(k) => {
+                let mut inside = vec![false; scan_mesh.n_vertices()];
+                for &v in k {
+                    inside[v] = true;
+                }
+                evaluated.iter().map(|&v| inside[v]).collect()
+            }
+            None => vec![true; evaluated.len()],
+        };
         tests.push(TestResult {
             test: *t,
             reference,
@@ -541,6 +705,16 @@ pub fn run_protocol(
             n_matches: dense.matches.len(),
             methods,
             timings,
+            perturbation: perturbations_name(&params.perturbations),
+            scan_vertices: scan_mesh.n_vertices(),
+            area_fraction,
+            present_points: evaluated.len(),
+            scan: kept.is_some().then(|| scan_mesh.clone()),
+            labels: columns.iter().map(|&j| eval_labels[j]).collect(),
+            evaluated,
+            in_matched_part,
+            matched_part_vertices: part_mesh.n_vertices(),
+            scale_ratio,
         });
         if let Some(cb) = progress.as_mut() {
             cb(ProtocolEvent::TestDone { done: done + 1, total: jobs.len(), name: &test_shape.name });

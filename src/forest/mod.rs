@@ -54,6 +54,7 @@
 //! assert!((probs.iter().sum::<f32>() - 1.0).abs() < 1e-5);
 //! ```
 
+mod augment;
 mod io;
 mod knn;
 mod model;
@@ -63,6 +64,7 @@ mod reference;
 mod training;
 mod tree;
 
+pub use augment::augmented_shape;
 pub use io::{fnv1a64, ModelHeader, MODEL_FORMAT_VERSION, MODEL_MAGIC};
 pub use knn::WksKnn;
 pub use model::{ForestDescriptor, RandomForest};

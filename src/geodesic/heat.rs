@@ -250,6 +250,21 @@ fn combine(
     SparseColMat::try_new_from_triplets(n, n, &triplets).map_err(assembly_error)
 }
 
+/// The diagonal of a sparse matrix (0 where a column has none).
+fn diagonal_of(a: &SparseColMat<usize, f64>) -> Vec<f64> {
+    let sym = a.symbolic();
+    (0..a.ncols())
+        .map(|j| {
+            let range = sym.col_range(j);
+            sym.row_idx()[range.clone()]
+                .iter()
+                .zip(&a.val()[range])
+                .find(|(&i, _)| i == j)
+                .map_or(0.0, |(_, &v)| v)
+        })
+        .collect()
+}
+
 fn assembly_error(e: impl std::fmt::Debug) -> GeodesicError {
     GeodesicError::Factorization { matrix: "assembly", reason: format!("{e:?}") }
 }
@@ -277,7 +292,28 @@ impl HeatMethodSolver {
         let (l, mass) = (operator.stiffness(), operator.mass);
 
         let heat_op = combine(n, &l, time, &mass, 1.0)?;
-        let poisson_op = combine(n, &l, 1.0, &mass, 1e-8 / area)?;
+        // Poisson: L + εM, and one vertex of every connected component pinned (its own
+        // diagonal added once more). εM alone leaves a small component with a pivot of order
+        // ε·area(component), below round-off on a fragmented scan; the pin keeps each block
+        // well conditioned and changes nothing else: the divergence sums to zero over each
+        // component, so the pinned solve differs from the exact one by a constant per
+        // component, which the shift to zero at the source removes.
+        let components = vertex_components(mesh);
+        let diagonal = diagonal_of(&l);
+        let mut seen = vec![false; n];
+        let poisson_diag: Vec<f64> = (0..n)
+            .map(|v| {
+                let eps_m = 1e-8 / area * mass[v];
+                let c = components[v];
+                if c < n && !seen[c] && diagonal[v] > 0.0 {
+                    seen[c] = true;
+                    eps_m + diagonal[v]
+                } else {
+                    eps_m
+                }
+            })
+            .collect();
+        let poisson_op = combine(n, &l, 1.0, &poisson_diag, 1.0)?;
         let symbolic = Cholesky::symbolic(&heat_op)?;
         // the two numeric factorisations are independent: run them side by side
         let (heat_neumann, poisson) = rayon::join(
@@ -304,7 +340,7 @@ impl HeatMethodSolver {
             n_vertices: n,
             faces: mesh.faces.clone(),
             face_operators,
-            components: vertex_components(mesh),
+            components,
             time,
             boundary: params.boundary,
             heat_neumann,

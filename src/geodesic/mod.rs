@@ -62,7 +62,7 @@
 mod exact;
 mod fps;
 mod heat;
-mod topology;
+pub(crate) mod topology;
 
 pub use exact::{dijkstra_distances, dijkstra_nearest_source, fast_marching_distances, FastMarchingSolver};
 pub use fps::{

@@ -71,6 +71,10 @@ pub enum MeshError {
         /// What is wrong.
         reason: String,
     },
+    /// A perturbation ([`super::Perturbation`]) has out-of-range settings or removes the whole
+    /// surface.
+    #[error("invalid perturbation {0}")]
+    InvalidPerturbation(String),
     /// A vertex coordinate is NaN or infinite.
     #[error("vertex {vertex} has a NaN or infinite coordinate")]
     NonFiniteVertex {

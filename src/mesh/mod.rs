@@ -42,6 +42,8 @@ mod error;
 mod io;
 mod obj;
 mod off;
+mod parts;
+mod perturb;
 mod ply;
 mod report;
 mod summary;
@@ -59,6 +61,8 @@ pub use io::{
 };
 pub use obj::{parse_obj, write_obj};
 pub use off::{parse_off, write_off};
+pub use parts::{extend_map_by_nearest, largest_component, submesh, vertex_components};
+pub use perturb::{perturb, perturbations_name, Perturbation, Perturbed};
 pub use ply::{parse_ply, write_ply, PlyEncoding};
 pub use report::{MeshFormat, MeshReport, MeshWarning};
 pub use summary::{is_zero_area, ComponentSize, MeshSummary};

@@ -76,6 +76,32 @@ impl PreparedShape {
     }
 }
 
+/// The area a scan's spectrum and distances are normalised by (see
+/// [`Spectrum::renormalised`]): its own, unless it is an open surface (it has boundary) whose
+/// area is between 5 % and 97 % of the reference's (`reference_area`, in the same units): a
+/// partial scan of a body like the reference, normalised by the reference's area so that its
+/// eigenvalues, descriptors and normalised distances are those of the whole body. A complete
+/// or closed scan, or one in other units (area ratio outside that range), keeps its own area,
+/// so the method stays scale invariant where it can be.
+///
+/// ```
+/// use shapeforest::{regularizer::normalising_area, synth::{grid_plane, icosphere}};
+/// let closed = icosphere(2, 1.0);
+/// assert_eq!(normalising_area(&closed, 100.0), closed.surface_area());
+/// let open = grid_plane(4, 4, 1.0, 1.0); // area 1, with boundary
+/// assert_eq!(normalising_area(&open, 2.0), 2.0);
+/// assert_eq!(normalising_area(&open, 1000.0), 1.0); // other units: its own area
+/// ```
+pub fn normalising_area(scan: &Mesh, reference_area: f64) -> f64 {
+    let own = scan.surface_area();
+    let ratio = own / reference_area;
+    if ratio > 0.05 && ratio < 0.97 && scan.summary().n_boundary_loops > 0 {
+        reference_area
+    } else {
+        own
+    }
+}
+
 /// ZoomOut refinement settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ZoomOutParams {

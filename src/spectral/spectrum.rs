@@ -36,4 +36,21 @@ impl Spectrum {
     pub fn vectors(&self) -> MatRef<'_, f64> {
         MatRef::from_column_major_slice(&self.eigenvectors, self.n_vertices, self.k())
     }
+
+    /// The same eigenpairs normalised for a surface of area `area` instead of the mesh's own
+    /// (`L` is scale-free and `M` scales with area, so `λ' = λ · area / own`,
+    /// `φ' = φ · √(area / own)`, `mass' = mass · own / area`). A partial scan is normalised by
+    /// the area of the whole body it comes from, so its eigenvalues and descriptors sit where
+    /// a complete shape's do; see [`crate::regularizer::normalising_area`].
+    pub fn renormalised(&self, area: f64) -> Spectrum {
+        let r = if area > 0.0 && self.area > 0.0 { area / self.area } else { 1.0 };
+        let s = r.sqrt();
+        Spectrum {
+            eigenvalues: self.eigenvalues.iter().map(|l| l * r).collect(),
+            eigenvectors: self.eigenvectors.iter().map(|x| x * s).collect(),
+            n_vertices: self.n_vertices,
+            mass: self.mass.iter().map(|m| m / r).collect(),
+            area: if r == 1.0 { self.area } else { area },
+        }
+    }
 }
