@@ -188,11 +188,7 @@ property float z\nend_header\n0 0 0\n1 1 1\n"
         [(cloud_off, MeshFormat::Off), (cloud_obj, MeshFormat::Obj), (cloud_ply, MeshFormat::Ply)]
     {
         let err = parse_mesh(bytes, format).unwrap_err();
-        assert_eq!(
-            err.to_string(),
-            "a point cloud needs at least 4 points, this one has 2",
-            "{format}"
-        );
+        assert_eq!(err.to_string(), "a point cloud needs at least 4 points, this one has 2", "{format}");
     }
 }
 

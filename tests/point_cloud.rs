@@ -11,11 +11,14 @@ use shapeforest::{
     forest::{RandomForest, TrainingSet},
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{
-        parse_mesh, point_cloud_mesh, read_mesh, read_mesh_with_report, write_ply, Mesh, MeshError, MeshFormat,
-        MeshWarning, PlyEncoding, DEFAULT_NEIGHBOURS,
+        parse_mesh, point_cloud_mesh, read_mesh, read_mesh_with_report, write_ply, Mesh, MeshError,
+        MeshFormat, MeshWarning, PlyEncoding, DEFAULT_NEIGHBOURS,
     },
     regularizer::{regularize, PreparedShape, RegularizerParams},
-    spectral::{compute_spectrum, point_cloud_laplacian, surface_operator, LaplacianKind, SpectrumParams, TuftedParams},
+    spectral::{
+        compute_spectrum, point_cloud_laplacian, surface_operator, LaplacianKind, SpectrumParams,
+        TuftedParams,
+    },
     synth::{creature_family, icosphere, CreatureParams},
 };
 
@@ -59,7 +62,10 @@ fn point_clouds_are_read_in_every_format() {
             ply_binary.extend_from_slice(&(*c as f32).to_le_bytes());
         }
     }
-    let xyz = format!("# x y z nx ny nz\n{}", points.iter().map(|p| format!("{} {} {} 0 0 1\n", p[0], p[1], p[2])).collect::<String>());
+    let xyz = format!(
+        "# x y z nx ny nz\n{}",
+        points.iter().map(|p| format!("{} {} {} 0 0 1\n", p[0], p[1], p[2])).collect::<String>()
+    );
     let cases: [(&[u8], MeshFormat, f64); 5] = [
         (off.as_bytes(), MeshFormat::Off, 0.0),
         (obj.as_bytes(), MeshFormat::Obj, 0.0),
@@ -75,7 +81,11 @@ fn point_clouds_are_read_in_every_format() {
         }
         match &report.warnings[0] {
             MeshWarning::PointCloud { points, neighbours, triangles } => {
-                assert_eq!((*points, *neighbours, *triangles), (n, DEFAULT_NEIGHBOURS, mesh.n_faces()), "{format}");
+                assert_eq!(
+                    (*points, *neighbours, *triangles),
+                    (n, DEFAULT_NEIGHBOURS, mesh.n_faces()),
+                    "{format}"
+                );
             }
             w => panic!("{format}: first warning is {w}"),
         }
@@ -134,7 +144,13 @@ fn sphere_cloud_spectrum_approaches_the_analytic_one() {
     assert_eq!(s.eigenvalues[0], 0.0);
     let got = sphere_ratios(&s.eigenvalues);
     for (i, g) in got.iter().enumerate() {
-        let l = if i < 3 { 1.0 } else if i < 8 { 2.0 } else { 3.0 };
+        let l = if i < 3 {
+            1.0
+        } else if i < 8 {
+            2.0
+        } else {
+            3.0
+        };
         let want = l * (l + 1.0);
         assert!((g / want - 1.0).abs() < 0.08, "eigenvalue {}: {g:.3} vs {want} (all: {got:.3?})", i + 1);
     }
@@ -159,7 +175,11 @@ fn sphere_cloud_spectrum_approaches_the_analytic_one() {
     let negative = edge_weight.values().filter(|&&w| w < -1e-9).count();
     // a flip the configuration does not allow (an edge glued to its own face) can leave a
     // handful of slightly negative weights; measured 2 of 9,012 edges, down to −0.027
-    assert!(negative * 1000 <= edge_weight.len() && worst > -0.1, "{negative} of {} edges negative, down to {worst}", edge_weight.len());
+    assert!(
+        negative * 1000 <= edge_weight.len() && worst > -0.1,
+        "{negative} of {} edges negative, down to {worst}",
+        edge_weight.len()
+    );
 }
 
 #[test]
@@ -179,7 +199,8 @@ fn plane_cloud_has_the_neumann_spectrum_of_the_square() {
 
 #[test]
 fn vertices_of_a_good_mesh_give_the_mesh_spectrum() {
-    let fam = creature_family(&CreatureParams { target_vertices: 3000, seed: 1, ..Default::default() }, 1).unwrap();
+    let fam =
+        creature_family(&CreatureParams { target_vertices: 3000, seed: 1, ..Default::default() }, 1).unwrap();
     let mesh = &fam.template;
     let a = compute_spectrum(mesh, &SpectrumParams::new(30)).unwrap();
     let cloud = point_cloud_mesh(&mesh.vertices, DEFAULT_NEIGHBOURS).unwrap();
@@ -193,7 +214,8 @@ fn vertices_of_a_good_mesh_give_the_mesh_spectrum() {
 #[test]
 fn non_manifold_mesh_gets_the_tufted_laplacian_and_geodesics() {
     // a closed creature with a fin of three triangles on one edge: a non-manifold edge
-    let fam = creature_family(&CreatureParams { target_vertices: 2000, seed: 2, ..Default::default() }, 1).unwrap();
+    let fam =
+        creature_family(&CreatureParams { target_vertices: 2000, seed: 2, ..Default::default() }, 1).unwrap();
     let mut m = fam.template.clone();
     let [a, b, _] = m.faces[0];
     let (pa, pb) = (m.vertices[a], m.vertices[b]);
@@ -230,14 +252,9 @@ fn errors(
     // geodesic_errors reads map[evaluated[j]]: re-index the map by column
     let by_column: Vec<usize> = evaluated.iter().map(|&i| map[i]).collect();
     let columns: Vec<usize> = (0..evaluated.len()).collect();
-    let (strict, sym) = geodesic_errors(
-        &by_column,
-        &columns,
-        fields.as_ref(),
-        Some(symmetry),
-        reference.mesh.surface_area(),
-    )
-    .unwrap();
+    let (strict, sym) =
+        geodesic_errors(&by_column, &columns, fields.as_ref(), Some(symmetry), reference.mesh.surface_area())
+            .unwrap();
     (ErrorSummary::of(&strict), ErrorSummary::of(&sym.unwrap()))
 }
 
@@ -246,11 +263,13 @@ fn point_cloud_of_a_held_out_shape_is_matched() {
     let fam =
         creature_family(&CreatureParams { target_vertices: 2000, seed: 4, ..Default::default() }, 6).unwrap();
     let params = SpectrumParams::new(60);
-    let spectra: Vec<_> = fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &params).unwrap())).collect();
+    let spectra: Vec<_> =
+        fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &params).unwrap())).collect();
     let set = TrainingSet::same_indexing((0..5).map(|i| (format!("s{i}"), spectra[i].clone()))).unwrap();
     let forest = RandomForest::params().n_trees(8).seed(2).check().unwrap().fit(&set).unwrap();
     let reference =
-        PreparedShape::new(Arc::new(fam.shapes[0].clone()), spectra[0].clone(), HeatParams::default()).unwrap();
+        PreparedShape::new(Arc::new(fam.shapes[0].clone()), spectra[0].clone(), HeatParams::default())
+            .unwrap();
     let held_out = &fam.shapes[5];
     let match_points = |cloud: Mesh| -> Vec<usize> {
         let spectrum = Arc::new(compute_spectrum(&cloud, &params).unwrap());

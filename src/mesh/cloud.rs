@@ -18,8 +18,8 @@
 //! Its spectrum uses the tufted intrinsic-Delaunay Laplacian, as for any non-manifold mesh.
 //!
 //! Conventions beyond the paper: normals are oriented consistently by propagation over the
-//! neighbour graph (Hoppe et al. 1992: a maximum spanning tree of `|nᵢ·nⱼ|`), outward at the
-//! point of largest `x` of each connected piece, and every triangle is oriented
+//! neighbour graph (Hoppe et al. 1992: a maximum spanning tree of `|nᵢ·nⱼ|`), outward on
+//! balance on each connected piece (`Σ nᵢ·(pᵢ − centroid) > 0`), and every triangle is oriented
 //! counter-clockwise about the normals of its corners, so orientation-sensitive descriptors see
 //! the same handedness as on an outward-oriented mesh. Vertex order is the point order.
 
@@ -104,14 +104,19 @@ pub fn local_triangulation(points: &[[f64; 3]], k: usize) -> Result<LocalTriangu
     }
     let k = k.clamp(3, points.len() - 1);
     let neighbours = nearest_neighbours(points, k);
-    let mut normals: Vec<[f64; 3]> =
-        (0..points.len()).into_par_iter().map(|i| pca_normal(points, i, &neighbours[i][..neighbours[i].len().min(PCA_NEIGHBOURS)])).collect();
+    let mut normals: Vec<[f64; 3]> = (0..points.len())
+        .into_par_iter()
+        .map(|i| pca_normal(points, i, &neighbours[i][..neighbours[i].len().min(PCA_NEIGHBOURS)]))
+        .collect();
     orient_normals(points, &neighbours, &mut normals);
     let fans: Vec<Vec<[usize; 3]>> = (0..points.len())
         .into_par_iter()
         .map(|i| {
-            let same_side: Vec<usize> =
-                neighbours[i].iter().copied().filter(|&j| dot(normals[i], normals[j]) >= NORMAL_AGREEMENT).collect();
+            let same_side: Vec<usize> = neighbours[i]
+                .iter()
+                .copied()
+                .filter(|&j| dot(normals[i], normals[j]) >= NORMAL_AGREEMENT)
+                .collect();
             local_fan(points, i, &same_side, normals[i])
         })
         .collect();
@@ -234,9 +239,9 @@ fn pca_normal(points: &[[f64; 3]], i: usize, nbrs: &[usize]) -> [f64; 3] {
 }
 
 /// Flips normals for a consistent orientation: on each connected piece of the (symmetrised)
-/// neighbour graph, the normal of the point of largest `x` is turned to `+x` (outward on a
-/// closed surface), then orientation spreads along a maximum spanning tree of `|nᵢ·nⱼ|` over
-/// the [`ORIENT_NEIGHBOURS`] nearest neighbours (the most reliable links, and a cheaper tree).
+/// neighbour graph, orientation spreads from the point of largest `x` along a maximum spanning tree of `|nᵢ·nⱼ|` over
+/// the [`ORIENT_NEIGHBOURS`] nearest neighbours (the most reliable links, and a cheaper tree);
+/// then the whole piece is flipped if its normals point inward on balance.
 fn orient_normals(points: &[[f64; 3]], neighbours: &[Vec<usize>], normals: &mut [[f64; 3]]) {
     let n = points.len();
     let mut adjacency: Vec<Vec<usize>> =
@@ -258,6 +263,7 @@ fn orient_normals(points: &[[f64; 3]], neighbours: &[Vec<usize>], normals: &mut 
             normals[seed] = normals[seed].map(|x| -x);
         }
         done[seed] = true;
+        let mut piece = vec![seed];
         push_edges(seed, &adjacency, normals, &done, &mut heap);
         while let Some((_, from, to)) = heap.pop() {
             if done[to] {
@@ -267,7 +273,23 @@ fn orient_normals(points: &[[f64; 3]], neighbours: &[Vec<usize>], normals: &mut 
                 normals[to] = normals[to].map(|x| -x);
             }
             done[to] = true;
+            piece.push(to);
             push_edges(to, &adjacency, normals, &done, &mut heap);
+        }
+        // Outward on the whole piece: the normals point away from its centroid on balance (the
+        // flux of the position field, the enclosed volume's sign, rather than one extreme point).
+        let count = piece.len() as f64;
+        let mut c = [0.0; 3];
+        for &v in &piece {
+            for d in 0..3 {
+                c[d] += points[v][d] / count;
+            }
+        }
+        let flux: f64 = piece.iter().map(|&v| dot(normals[v], sub(points[v], c))).sum();
+        if flux < 0.0 {
+            for &v in &piece {
+                normals[v] = normals[v].map(|x| -x);
+            }
         }
     }
 }

@@ -48,9 +48,7 @@ pub enum MeshError {
     },
     /// A [`crate::mesh::Mesh`] was built from vertices without faces. (Readers accept such data
     /// as a point cloud instead, see [`crate::mesh::point_cloud_mesh`].)
-    #[error(
-        "the mesh has {vertices} vertices but no faces (a point cloud: build it with point_cloud_mesh)"
-    )]
+    #[error("the mesh has {vertices} vertices but no faces (a point cloud: build it with point_cloud_mesh)")]
     PointCloud {
         /// Vertex count found.
         vertices: usize,

@@ -14,9 +14,9 @@ use super::obj::{obj_parts, write_obj};
 use super::off::{off_parts, write_off};
 use super::ply::{ply_parts, write_ply, PlyEncoding};
 use super::report::{MeshFormat, MeshReport, Parts};
-use super::xyz::{write_xyz, xyz_parts};
 use super::text::gunzip_limited;
 use super::tosca::{parse_tri, parse_vert, write_tosca};
+use super::xyz::{write_xyz, xyz_parts};
 use super::{Mesh, MeshError};
 use crate::limits::Limits;
 

@@ -52,7 +52,8 @@ mod tosca;
 mod xyz;
 
 pub use cloud::{
-    local_triangulation, point_cloud_mesh, LocalTriangulation, DEFAULT_NEIGHBOURS, MIN_POINTS, POINT_CLOUD_COVER,
+    local_triangulation, point_cloud_mesh, LocalTriangulation, DEFAULT_NEIGHBOURS, MIN_POINTS,
+    POINT_CLOUD_COVER,
 };
 pub use error::{Location, MeshError};
 pub use io::{

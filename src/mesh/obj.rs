@@ -16,7 +16,7 @@
 
 use std::io::Write;
 
-use super::report::{check_face, check_vertex, push_fan, Parts, MeshFormat, MeshReport, MeshWarning};
+use super::report::{check_face, check_vertex, push_fan, MeshFormat, MeshReport, MeshWarning, Parts};
 use super::text::{gunzip_if_needed, parse_i64, parse_xyz, show, tokens, Lines};
 use super::{Mesh, MeshError};
 use crate::limits::Limits;
@@ -236,10 +236,7 @@ mod tests {
             "line 2: expected a relative vertex index within the 1 vertices defined so far, found \"-2\""
         );
         assert_eq!(err("v 0 0 0\nv inf 0 0\n"), "line 2: vertex 1 has a NaN or infinite coordinate");
-        assert_eq!(
-            err("v 0 0 0\nv 1 1 1\np 1\n"),
-            "a point cloud needs at least 4 points, this one has 2"
-        );
+        assert_eq!(err("v 0 0 0\nv 1 1 1\np 1\n"), "a point cloud needs at least 4 points, this one has 2");
         assert_eq!(err("# nothing\n"), "empty mesh: 0 vertices, 0 faces");
     }
 

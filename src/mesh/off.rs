@@ -16,7 +16,7 @@
 
 use std::io::Write;
 
-use super::report::{check_vertex, push_fan, Parts, MeshFormat, MeshReport, MeshWarning};
+use super::report::{check_vertex, push_fan, MeshFormat, MeshReport, MeshWarning, Parts};
 use super::text::{capped_capacity, gunzip_if_needed, parse_usize, parse_xyz, show, tokens, Lines};
 use super::{Mesh, MeshError};
 use crate::limits::Limits;

@@ -246,7 +246,10 @@ pub fn perturb(mesh: &Mesh, list: &[Perturbation], seed: u64) -> Result<Perturbe
         let sampled: Vec<usize> = kept.iter().copied().filter(|_| rng.random_bool(fraction)).collect();
         let points: Vec<[f64; 3]> = sampled.iter().map(|&v| vertices[v]).collect();
         let mesh = super::point_cloud_mesh(&points, super::DEFAULT_NEIGHBOURS).map_err(|e| {
-            MeshError::InvalidPerturbation(format!("{}: no point-cloud surface: {e}", perturbations_name(list)))
+            MeshError::InvalidPerturbation(format!(
+                "{}: no point-cloud surface: {e}",
+                perturbations_name(list)
+            ))
         })?;
         return Ok(Perturbed { mesh, kept: sampled });
     }
@@ -504,9 +507,13 @@ mod tests {
         for (v, &old) in half.kept.iter().enumerate() {
             assert_eq!(half.mesh.vertices[v], sphere.vertices[old]);
         }
-        assert_eq!(perturb(&sphere, &[Perturbation::PointCloud { fraction: 0.5 }], 3).unwrap().kept, half.kept);
+        assert_eq!(
+            perturb(&sphere, &[Perturbation::PointCloud { fraction: 0.5 }], 3).unwrap().kept,
+            half.kept
+        );
         // after holes, the cloud samples what the holes left
-        let list = [Perturbation::PointCloud { fraction: 1.0 }, Perturbation::Holes { count: 2, radius: 0.1 }];
+        let list =
+            [Perturbation::PointCloud { fraction: 1.0 }, Perturbation::Holes { count: 2, radius: 0.1 }];
         let holed = perturb(&sphere, &list, 4).unwrap();
         assert!(holed.kept.len() < sphere.n_vertices());
         assert_eq!(perturbations_name(&list), "point-cloud+holes2x0.1");

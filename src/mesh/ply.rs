@@ -22,7 +22,7 @@ use ply_rs_bw::ply::{
 };
 
 use super::error::Location;
-use super::report::{check_face, check_vertex, push_fan, Parts, MeshFormat, MeshReport, MeshWarning};
+use super::report::{check_face, check_vertex, push_fan, MeshFormat, MeshReport, MeshWarning, Parts};
 use super::text::gunzip_if_needed;
 use super::{Mesh, MeshError};
 use crate::limits::Limits;

@@ -6,8 +6,8 @@
 
 use std::fmt;
 
-use super::summary::{analyse, MeshSummary};
 use super::cloud::{point_cloud_mesh, DEFAULT_NEIGHBOURS};
+use super::summary::{analyse, MeshSummary};
 use super::{Mesh, MeshError};
 use crate::limits::Limits;
 
@@ -193,7 +193,11 @@ impl Parts {
     }
 }
 
-fn finish_mesh(mesh: Mesh, format: MeshFormat, notes: Vec<MeshWarning>) -> Result<(Mesh, MeshReport), MeshError> {
+fn finish_mesh(
+    mesh: Mesh,
+    format: MeshFormat,
+    notes: Vec<MeshWarning>,
+) -> Result<(Mesh, MeshReport), MeshError> {
     let point_cloud = notes.iter().any(|n| matches!(n, MeshWarning::PointCloud { .. }));
     let analysis = analyse(&mesh);
     let s = &analysis.summary;

@@ -84,7 +84,8 @@ fn parse_one_based(tok: &[u8]) -> Option<usize> {
 pub fn parse_tosca(vert: &[u8], tri: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
     let vertices = parse_vert(vert).map_err(|e| e.in_file("<vert data>".as_ref()))?;
     let faces = parse_tri(tri, vertices.len()).map_err(|e| e.in_file("<tri data>".as_ref()))?;
-    Parts { vertices, faces, format: MeshFormat::Tosca, notes: Vec::new() }.finish(&crate::limits::Limits::default())
+    Parts { vertices, faces, format: MeshFormat::Tosca, notes: Vec::new() }
+        .finish(&crate::limits::Limits::default())
 }
 
 /// Writes `mesh` as a TOSCA pair: vertices to `vert`, 1-based triangles to `tri`.

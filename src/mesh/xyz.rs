@@ -54,7 +54,11 @@ mod tests {
     use crate::mesh::{MeshWarning, DEFAULT_NEIGHBOURS};
 
     fn sphere_text() -> String {
-        crate::synth::icosphere(2, 1.0).vertices.iter().map(|p| format!("{} {} {}\n", p[0], p[1], p[2])).collect()
+        crate::synth::icosphere(2, 1.0)
+            .vertices
+            .iter()
+            .map(|p| format!("{} {} {}\n", p[0], p[1], p[2]))
+            .collect()
     }
 
     #[test]

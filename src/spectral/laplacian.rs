@@ -73,8 +73,12 @@ pub fn surface_operator(mesh: &Mesh) -> SurfaceOperator {
     if let Some(multiplicity) = mesh.point_cloud_multiplicity() {
         // the paper's point-cloud Laplacian: every fan's triangle, so a face found in m fans
         // enters m times, and the result divided by the cover
-        let soup: Vec<[usize; 3]> =
-            mesh.faces.iter().zip(multiplicity).flat_map(|(f, &m)| std::iter::repeat_n(*f, m as usize)).collect();
+        let soup: Vec<[usize; 3]> = mesh
+            .faces
+            .iter()
+            .zip(multiplicity)
+            .flat_map(|(f, &m)| std::iter::repeat_n(*f, m as usize))
+            .collect();
         if let Ok(t) = tufted_laplacian(&mesh.vertices, &soup, TuftedParams::default()) {
             let s = 1.0 / POINT_CLOUD_COVER;
             return SurfaceOperator {
@@ -91,7 +95,11 @@ pub fn surface_operator(mesh: &Mesh) -> SurfaceOperator {
             return SurfaceOperator { kind: LaplacianKind::Tufted, weights: t.weights, mass: t.mass };
         }
     }
-    SurfaceOperator { kind: LaplacianKind::Cotan, weights: cotan_weights(mesh), mass: vertex_lumped_mass(mesh) }
+    SurfaceOperator {
+        kind: LaplacianKind::Cotan,
+        weights: cotan_weights(mesh),
+        mass: vertex_lumped_mass(mesh),
+    }
 }
 
 fn weights_matrix(n: usize, weights: &[(usize, usize, f64)]) -> SparseColMat<usize, f64> {
@@ -102,7 +110,8 @@ fn weights_matrix(n: usize, weights: &[(usize, usize, f64)]) -> SparseColMat<usi
         triplets.push(Triplet::new(i, i, w));
         triplets.push(Triplet::new(j, j, w));
     }
-    SparseColMat::try_new_from_triplets(n, n, &triplets).expect("Laplacian indices are validated by Mesh::new")
+    SparseColMat::try_new_from_triplets(n, n, &triplets)
+        .expect("Laplacian indices are validated by Mesh::new")
 }
 
 /// Cotangent of the angle between `u` and `v`, or `None` for a degenerate (zero-area) corner.

@@ -32,15 +32,15 @@ pub mod tufted;
 pub use cache::SpectrumCache;
 pub use dense::dense_spectrum;
 pub use laplacian::{
-    cotan_laplacian, cotan_weights, has_non_manifold_edge, surface_operator, vertex_lumped_mass, LaplacianKind,
-    SurfaceOperator,
+    cotan_laplacian, cotan_weights, has_non_manifold_edge, surface_operator, vertex_lumped_mass,
+    LaplacianKind, SurfaceOperator,
 };
-pub use tufted::{point_cloud_laplacian, tufted_laplacian, IntrinsicLaplacian, TuftedError, TuftedParams};
 pub use solver::{
     compute_spectrum, relative_residuals, LaplaceBeltramiSolver, SpectrumMethod, SpectrumParams,
     SpectrumReport, SOLVER_VERSION,
 };
 pub use spectrum::Spectrum;
+pub use tufted::{point_cloud_laplacian, tufted_laplacian, IntrinsicLaplacian, TuftedError, TuftedParams};
 
 use std::path::PathBuf;
 

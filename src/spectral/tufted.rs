@@ -203,9 +203,16 @@ impl Cover {
             tail[3 * (nf + f)..3 * (nf + f) + 3].copy_from_slice(&[t[0], t[2], t[1]]);
         }
         let head = |tail: &[usize], h: usize| tail[next(h)];
-        let len: Vec<f64> = (0..6 * nf).map(|h| norm(sub(vertices[head(&tail, h)], vertices[tail[h]]))).collect();
+        let len: Vec<f64> =
+            (0..6 * nf).map(|h| norm(sub(vertices[head(&tail, h)], vertices[tail[h]]))).collect();
         // the back copy of front halfedge 3f + c runs the other way: it is 3(F + f) + (2 − c)
-        let other_sheet = |h: usize| if h < 3 * nf { 3 * (nf + h / 3) + (2 - h % 3) } else { 3 * ((h / 3) - nf) + (2 - h % 3) };
+        let other_sheet = |h: usize| {
+            if h < 3 * nf {
+                3 * (nf + h / 3) + (2 - h % 3)
+            } else {
+                3 * ((h / 3) - nf) + (2 - h % 3)
+            }
+        };
 
         // Front halfedges grouped by undirected edge.
         let mut by_edge: Vec<(usize, usize, usize)> = (0..3 * nf)
@@ -325,7 +332,8 @@ impl Cover {
         let (hn, hp, tn, tp) = (next(h), next(next(h)), next(t), next(next(t)));
         // a → b along h; c opposite in h's face, d opposite in t's face
         let (a, b, c, d) = (self.tail[h], self.tail[hn], self.tail[hp], self.tail[tp]);
-        let (l_ab, l_bc, l_ca, l_ad, l_db) = (self.len[h], self.len[hn], self.len[hp], self.len[tn], self.len[tp]);
+        let (l_ab, l_bc, l_ca, l_ad, l_db) =
+            (self.len[h], self.len[hn], self.len[hp], self.len[tn], self.len[tp]);
         // layout: a = (0, 0), b = (l_ab, 0), c above, d below
         let xc = (l_ab * l_ab + l_ca * l_ca - l_bc * l_bc) / (2.0 * l_ab);
         let yc = (l_ca * l_ca - xc * xc).max(0.0).sqrt();
@@ -517,7 +525,10 @@ mod tests {
     #[test]
     fn bad_input_is_refused() {
         let v = [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
-        assert!(matches!(tufted_laplacian(&v, &[[0, 1, 3]], TuftedParams::default()), Err(TuftedError::BadFace { .. })));
+        assert!(matches!(
+            tufted_laplacian(&v, &[[0, 1, 3]], TuftedParams::default()),
+            Err(TuftedError::BadFace { .. })
+        ));
         assert!(matches!(tufted_laplacian(&v, &[], TuftedParams::default()), Err(TuftedError::Degenerate)));
         assert!(matches!(
             tufted_laplacian(&v, &[[0, 1, 2]], TuftedParams { mollify_factor: -1.0 }),
