@@ -115,11 +115,11 @@ impl fmt::Display for Perturbation {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
             Perturbation::Holes { count, radius } => write!(f, "holes{count}x{radius}"),
-            Perturbation::PartialView { min_cos } if min_cos == 0.15 => write!(f, "partial-view"),
+            Perturbation::PartialView { min_cos: 0.15 } => write!(f, "partial-view"),
             Perturbation::PartialView { min_cos } => write!(f, "partial-view{min_cos}"),
             Perturbation::Crop { radius } => write!(f, "crop{radius}"),
             Perturbation::Noise { sigma } => write!(f, "noise{sigma}"),
-            Perturbation::PointCloud { fraction } if fraction == 1.0 => write!(f, "point-cloud"),
+            Perturbation::PointCloud { fraction: 1.0 } => write!(f, "point-cloud"),
             Perturbation::PointCloud { fraction } => write!(f, "point-cloud{fraction}"),
         }
     }
@@ -282,7 +282,7 @@ fn mean_edge_length(v: &[[f64; 3]], faces: &[[usize; 3]]) -> f64 {
 fn random_surface_point(v: &[[f64; 3]], faces: &[[usize; 3]], rng: &mut ChaCha8Rng) -> Option<[f64; 3]> {
     let areas: Vec<f64> = faces.iter().map(|f| triangle_area(v[f[0]], v[f[1]], v[f[2]])).collect();
     let total: f64 = areas.iter().sum();
-    if !(total > 0.0) {
+    if total.is_nan() || total <= 0.0 {
         return None;
     }
     let mut t = rng.random::<f64>() * total;
@@ -380,7 +380,7 @@ fn visible_faces(v: &[[f64; 3]], faces: &[[usize; 3]], dir: [f64; 3], min_cos: f
             let (a, b, c) = (v[f[0]], v[f[1]], v[f[2]]);
             let n = cross(sub(b, a), sub(c, a));
             let len = dot(n, n).sqrt();
-            if !(len > 0.0) || dot(n, dir) / len <= min_cos {
+            if len.is_nan() || len <= 0.0 || dot(n, dir) / len <= min_cos {
                 return false;
             }
             let (pa, pb, pc) = (proj[f[0]], proj[f[1]], proj[f[2]]);

@@ -481,11 +481,10 @@ mod tests {
         assert!(diagonal < 0.0, "the fixture must be non-Delaunay, weight {diagonal}");
         let l = tufted_laplacian(&v, &f, TuftedParams::default()).unwrap();
         let d = dense(&l);
-        for i in 0..4 {
-            let row: f64 = d[i].iter().sum();
-            assert!(row.abs() < 1e-10);
-            for j in 0..4 {
-                assert!(i == j || d[i][j] <= 1e-12, "L[{i}][{j}] = {}", d[i][j]);
+        for (i, row) in d.iter().enumerate() {
+            assert!(row.iter().sum::<f64>().abs() < 1e-10);
+            for (j, &x) in row.iter().enumerate() {
+                assert!(i == j || x <= 1e-12, "L[{i}][{j}] = {x}");
             }
         }
         assert!((l.total_mass() - m.surface_area()).abs() < 1e-3);
