@@ -36,12 +36,13 @@ use super::{cross, dot, norm, sub, Mesh, MeshError};
 /// Default neighbourhood size `k` of the readers, as in `robust_laplacian`.
 ///
 /// Two departures from `robust_laplacian` keep 30 usable on shapes of a few thousand points
-/// with thin parts (legs, tails), where 30 neighbours reach across to the other side of a limb:
-/// the normal comes from the nearest 10 only, and neighbours whose oriented
-/// normal faces away are left out of the fan. Without them, on the 2,000-vertex synthetic
-/// creature, λ₁ of the cloud fell to 0.84 of the mesh's (the fans bridged the legs) and a
-/// held-out cloud was matched 59 % within 0.05 (k = 30); with them, the clouds of the built-in
-/// family match as well as the meshes (`eval --synthetic --point-cloud`).
+/// with thin parts (legs, tails, fingers), where 30 neighbours reach across to the other side
+/// of a limb: the normal comes from the nearest [`PCA_NEIGHBOURS`] only, and neighbours whose
+/// oriented normal faces away are left out of the fan. Measured on the 2,000-vertex synthetic
+/// creature (held-out pose, forest trained on meshes), within 0.05: 59 % with plain k = 30
+/// (λ₁ fell to 0.84 of the mesh's: the fans bridged the legs), 98 % with plain k = 12 (but on
+/// 3,000 random points of a sphere k = 12 leaves 14 % excess area and λ 3–7 % high), 99 % with
+/// both departures at k = 12, 20 and 30 (sphere: λ within 2 % at k = 30).
 pub const DEFAULT_NEIGHBOURS: usize = 30;
 
 /// How many times the union of the local fans covers the surface, in the limit of sampling.
@@ -263,7 +264,7 @@ fn orient_normals(points: &[[f64; 3]], neighbours: &[Vec<usize>], normals: &mut 
         }
         done[seed] = true;
         let mut piece = vec![seed];
-        push_edges(seed, points, &adjacency, normals, &done, &mut heap);
+        push_edges(seed, &adjacency, normals, &done, &mut heap);
         while let Some((_, from, to)) = heap.pop() {
             if done[to] {
                 continue;
@@ -273,7 +274,7 @@ fn orient_normals(points: &[[f64; 3]], neighbours: &[Vec<usize>], normals: &mut 
             }
             done[to] = true;
             piece.push(to);
-            push_edges(to, points, &adjacency, normals, &done, &mut heap);
+            push_edges(to, &adjacency, normals, &done, &mut heap);
         }
         // Outward on the whole piece: the normals point away from its centroid on balance (the
         // flux of the position field, the enclosed volume's sign, rather than one extreme point).
@@ -293,13 +294,8 @@ fn orient_normals(points: &[[f64; 3]], neighbours: &[Vec<usize>], normals: &mut 
     }
 }
 
-/// Pushes the links from `from` to its unvisited neighbours, weighted by how safely orientation
-/// crosses them: parallel normals (`|nᵢ·nⱼ|`), less how far the link runs along either normal.
-/// A link across a thin part (to the other side of a leg or a tail) has parallel normals that
-/// must get opposite signs; running along the normals, it is taken last.
 fn push_edges(
     from: usize,
-    points: &[[f64; 3]],
     adjacency: &[Vec<usize>],
     normals: &[[f64; 3]],
     done: &[bool],
@@ -307,11 +303,7 @@ fn push_edges(
 ) {
     for &to in &adjacency[from] {
         if !done[to] {
-            let d = sub(points[to], points[from]);
-            let l = norm(d);
-            let along =
-                if l > 0.0 { (dot(normals[from], d).abs() + dot(normals[to], d).abs()) / l } else { 0.0 };
-            heap.push((OrdF64(dot(normals[from], normals[to]).abs() - along), from, to));
+            heap.push((OrdF64(dot(normals[from], normals[to]).abs()), from, to));
         }
     }
 }
