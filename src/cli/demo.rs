@@ -17,7 +17,7 @@ use shapeforest::{
     eval::{geodesic_errors, ErrorSummary},
     forest::labels_identity,
     geodesic::HeatParams,
-    mesh::{read_mesh, write_mesh},
+    mesh::{perturb, read_mesh, write_mesh, Mesh, Perturbation},
     pipeline::{
         daemon::run_spec, label_map_text, latest_manifest, DataDir, PipelineSpec, RunOptions, Shutdown,
     },
@@ -173,9 +173,18 @@ pub fn run(args: DemoArgs) -> Result<()> {
     );
 
     let t0 = Instant::now();
-    let names: Vec<String> =
-        (args.train..args.train + args.test).map(|t| format!("scan-creature{t}")).collect();
-    for (name, mesh) in names.iter().zip(fam.shapes.iter().skip(args.train)) {
+    // The held-out poses as scans, and the last one once more with five holes (a scan as they
+    // really arrive; ground truth through the perturbation's vertex map).
+    let mut scans: Vec<(String, Mesh, Option<Vec<usize>>)> = (args.train..args.train + args.test)
+        .map(|t| (format!("scan-creature{t}"), fam.shapes[t].clone(), None))
+        .collect();
+    if args.test > 0 {
+        let last = args.train + args.test - 1;
+        let holed = perturb(&fam.shapes[last], &[Perturbation::Holes { count: 5, radius: 0.03 }], 1)?;
+        scans.push((format!("scan-creature{last}-holed"), holed.mesh, Some(holed.kept)));
+    }
+    let names: Vec<String> = scans.iter().map(|s| s.0.clone()).collect();
+    for (name, mesh, _) in &scans {
         drop_file(&staging, &data.incoming(), &format!("{name}.off"), |p| Ok(write_mesh(p, mesh)?))?;
     }
     drop_file(&staging, &data.incoming(), "broken-scan.off", |p| {
@@ -190,7 +199,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         matched as u64 + u64::from(data.rejected().join("broken-scan.error.json").is_file())
     })?;
     println!(
-        "  4. dropped {} scans and one broken file into incoming/ → {} matched, 1 rejected, in {:.1} s",
+        "  4. dropped {} scans (one with five holes) and one broken file into incoming/ → {} matched, 1 rejected, in {:.1} s",
         names.len(),
         names.len(),
         t0.elapsed().as_secs_f64()
@@ -217,11 +226,11 @@ pub fn run(args: DemoArgs) -> Result<()> {
         evaluated.len()
     );
     println!(
-        "  {:<18} {:>8} {:>8} {:>7} {:>14} {:>9}",
+        "  {:<24} {:>8} {:>8} {:>7} {:>14} {:>9}",
         "scan", "≤ 0.05", "≤ 0.10", "mean", "sym. ≤ 0.05", "latency"
     );
     let mut pooled = (Vec::new(), Vec::new());
-    for (i, name) in names.iter().enumerate() {
+    for (name, scan, kept) in &scans {
         let dir = data.matched().join(name);
         let text = std::fs::read_to_string(dir.join(format!("{name}.map.txt")))?;
         let map: Vec<usize> = text
@@ -232,21 +241,33 @@ pub fn run(args: DemoArgs) -> Result<()> {
             .context("bad map file")?;
         let report: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{name}.report.json")))?)?;
-        let (strict, sym) = geodesic_errors(&map, &evaluated, fields.as_ref(), Some(&fam.symmetry), area)?;
+        // The evaluated points the scan has, as scan vertices, and their distance fields.
+        let (columns, on_scan): (Vec<usize>, Vec<usize>) = match kept {
+            None => evaluated.iter().copied().enumerate().unzip(),
+            Some(kept) => {
+                let mut index = vec![None; n];
+                for (new, &old) in kept.iter().enumerate() {
+                    index[old] = Some(new);
+                }
+                evaluated.iter().enumerate().filter_map(|(j, &v)| index[v].map(|s| (j, s))).unzip()
+            }
+        };
+        let scan_fields = faer::Mat::from_fn(fields.nrows(), columns.len(), |r, c| fields[(r, columns[c])]);
+        let (strict, sym) = geodesic_errors(&map, &on_scan, scan_fields.as_ref(), Some(&fam.symmetry), area)?;
         let sym = sym.unwrap_or_default();
         super::visual::write_scored_view(
             &dir,
             name,
-            &fam.shapes[args.train + i],
+            scan,
             &reference,
             &manifest.reference,
             &map,
-            &evaluated,
+            &on_scan,
             &strict,
         )?;
         let (s, y) = (ErrorSummary::of(&strict), ErrorSummary::of(&sym));
         println!(
-            "  {:<18} {:>7.1}% {:>7.1}% {:>7.3} {:>13.1}% {:>8.1}s",
+            "  {:<24} {:>7.1}% {:>7.1}% {:>7.3} {:>13.1}% {:>8.1}s",
             name,
             100.0 * s.within_005,
             100.0 * s.within_010,
@@ -259,7 +280,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
     }
     let (s, y) = (ErrorSummary::of(&pooled.0), ErrorSummary::of(&pooled.1));
     println!(
-        "  {:<18} {:>7.1}% {:>7.1}% {:>7.3} {:>13.1}%",
+        "  {:<24} {:>7.1}% {:>7.1}% {:>7.3} {:>13.1}%",
         "all",
         100.0 * s.within_005,
         100.0 * s.within_010,

@@ -27,7 +27,7 @@ use clap::Args;
 use shapeforest::{
     forest::{per_vertex_labels, read_label_map, read_per_label_rows, reference_table, RandomForest},
     mesh::{coordinate_colors, read_mesh, write_colored_ply, Mesh},
-    regularizer::{regularize, regularize_pair, PairParams, PreparedShape, RegularizerParams},
+    regularizer::{regularize, regularize_pair, PairParams, PreparedShape, RegularizerParams, ScanPart},
     spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
 };
 
@@ -176,20 +176,43 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let reg = RegularizerParams::default();
     let k = forest.k().max(reg.fmap.k_test).max(reg.fmap.k_ref);
     let sp_params = SpectrumParams::new(k);
+    // A scan in pieces is matched on its largest component, an open partial scan normalised by
+    // the reference's area (`ScanPart`); without --to only.
+    let scan = Arc::new(scan);
+    let part = if args.to.is_none() {
+        ScanPart::of(&scan)
+    } else {
+        ScanPart { mesh: scan.clone(), kept: None, components: 1 }
+    };
+    if let Some(kept) = &part.kept {
+        tracing::warn!(
+            "{}: {} connected components; matching the largest ({} of {} vertices), the other pieces take \
+             the match of their nearest matched vertex",
+            args.mesh.display(),
+            part.components,
+            kept.len(),
+            scan.n_vertices()
+        );
+    }
     let t0 = Instant::now();
-    let scan_spectrum = Arc::new(spectrum(&scan, &sp_params, cache.as_ref(), &args.mesh)?);
+    let scan_spectrum = spectrum(&part.mesh, &sp_params, cache.as_ref(), &args.mesh)?;
     let spectrum_scan_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
     let ref_spectrum = Arc::new(spectrum(&reference, &sp_params, cache.as_ref(), &args.reference)?);
     let spectrum_ref_s = t0.elapsed().as_secs_f64();
+    let (scan_spectrum, scale_ratio) = if args.to.is_none() {
+        let (sp, r) = part.normalise(scan_spectrum, reference.surface_area());
+        (Arc::new(sp), r)
+    } else {
+        (Arc::new(scan_spectrum), 1.0)
+    };
 
     let t0 = Instant::now();
     let prediction = forest.predict(&scan_spectrum).context("forest prediction failed")?;
     let predict_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
-    let scan = Arc::new(scan);
     let reference = Arc::new(reference);
-    let test = PreparedShape::new(scan.clone(), scan_spectrum, reg.heat)?;
+    let test = PreparedShape::new(part.mesh.clone(), scan_spectrum, reg.heat)?;
     let refp = PreparedShape::new(reference.clone(), ref_spectrum, reg.heat)?;
     let prepare_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
@@ -212,7 +235,11 @@ pub fn run(args: MatchArgs) -> Result<()> {
             )?;
             (pair.dense, Some((target, target_path)))
         }
-        _ => (regularize(&test, &refp, &prediction, table.as_deref(), &reg)?, None),
+        _ => {
+            let mut dense = regularize(&test, &refp, &prediction, table.as_deref(), &reg)?;
+            dense.map = part.extend(&scan, dense.map);
+            (dense, None)
+        }
     };
     let regularize_s = t0.elapsed().as_secs_f64();
 
@@ -250,6 +277,9 @@ pub fn run(args: MatchArgs) -> Result<()> {
         "mesh": args.mesh.display().to_string(),
         "reference": args.reference.display().to_string(),
         "to": args.to.as_ref().map(|p| p.display().to_string()),
+        "components": part.components,
+        "matched_part_vertices": part.mesh.n_vertices(),
+        "normalising_area_ratio": scale_ratio,
         "label_table": match (&args.reference_labels, forest.reference()) {
             (Some(p), _) => format!("from {}", p.display()),
             (None, Some(r)) => format!("stored in the model (reference `{}`)", r.name),

@@ -51,8 +51,8 @@ use crate::{
         augmented_shape, Prediction, RandomForest, RandomForestParams, TrainingSet, TrainingShape, WksKnn,
     },
     geodesic::{HeatMethodSolver, HeatParams},
-    mesh::{extend_map_by_nearest, largest_component, perturb, perturbations_name, Mesh, Perturbation},
-    regularizer::{normalising_area, regularize, PreparedShape, RegularizerParams},
+    mesh::{perturb, perturbations_name, Mesh, Perturbation},
+    regularizer::{regularize, PreparedShape, RegularizerParams, ScanPart},
     spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
     Error,
 };
@@ -581,34 +581,28 @@ pub fn run_protocol(
         };
         // The part that is matched: the largest component of a scan in pieces, normalised by
         // the reference's area when it is an open part of a body.
-        let part =
-            if params.largest_component && kept.is_some() { largest_component(&scan_mesh) } else { None };
-        let (part_mesh, part_spectrum, part_kept) = match part {
-            Some((mesh, part_kept)) => {
-                let mesh = Arc::new(mesh);
-                let sp = match &cache {
-                    Some(c) => c.get_or_compute(&mesh, &params.spectrum)?,
-                    None => compute_spectrum(&mesh, &params.spectrum)?,
-                };
-                (mesh, Arc::new(sp), Some(part_kept))
-            }
-            None => (scan_mesh.clone(), scan_spectrum, None),
+        let part = if params.largest_component && kept.is_some() {
+            ScanPart::of(&scan_mesh)
+        } else {
+            ScanPart { mesh: scan_mesh.clone(), kept: None, components: 1 }
+        };
+        let part_spectrum = match (&part.kept, &cache) {
+            (None, _) => scan_spectrum,
+            (Some(_), Some(c)) => Arc::new(c.get_or_compute(&part.mesh, &params.spectrum)?),
+            (Some(_), None) => Arc::new(compute_spectrum(&part.mesh, &params.spectrum)?),
         };
         let (part_spectrum, scale_ratio) = if params.partial_scale && kept.is_some() {
-            let area = normalising_area(&part_mesh, shapes[reference].mesh.surface_area());
-            let ratio = area / part_spectrum.area;
-            (Arc::new(part_spectrum.renormalised(area)), ratio)
+            let (sp, ratio) = part.normalise((*part_spectrum).clone(), shapes[reference].mesh.surface_area());
+            (Arc::new(sp), ratio)
         } else {
             (part_spectrum, 1.0)
         };
+        let (part_mesh, part_kept) = (part.mesh.clone(), part.kept.clone());
         let t0 = Instant::now();
         let test_prepared = PreparedShape::new(part_mesh.clone(), part_spectrum, params.regularizer.heat)?;
         timings.prepare_s += t0.elapsed().as_secs_f64();
         // A map on the part, as a map on the whole scan.
-        let on_scan = |map: Vec<usize>| match &part_kept {
-            Some(k) => extend_map_by_nearest(&scan_mesh, k, &map),
-            None => map,
-        };
+        let on_scan = |map: Vec<usize>| part.extend(&scan_mesh, map);
 
         stage(&mut progress, "predict");
         let t0 = Instant::now();

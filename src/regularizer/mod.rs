@@ -25,12 +25,14 @@ use std::{sync::Arc, time::Instant};
 mod growth;
 mod orientation;
 mod pair;
+mod scan;
 mod smoothing;
 
 use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
 pub use pair::{invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams};
+pub use scan::ScanPart;
 
 use faer::Mat;
 use serde::{Deserialize, Serialize};

@@ -1,0 +1,55 @@
+//! The part of a scan that is matched: a scan in pieces is matched on its largest connected
+//! component, and an open, partial scan is normalised by the reference's area (see
+//! [`normalising_area`]); a map of the part is extended to the whole scan by nearest vertex
+//! ([`crate::mesh::extend_map_by_nearest`]).
+
+use std::sync::Arc;
+
+use super::normalising_area;
+use crate::{
+    mesh::{extend_map_by_nearest, largest_component, Mesh},
+    spectral::Spectrum,
+};
+
+/// The matched part of a scan.
+#[derive(Clone, Debug)]
+pub struct ScanPart {
+    /// The part (the scan itself when it is connected).
+    pub mesh: Arc<Mesh>,
+    /// `kept[i]`: the scan vertex that part vertex `i` is (`None`: the part is the scan).
+    pub kept: Option<Vec<usize>>,
+    /// Connected components of the scan.
+    pub components: usize,
+}
+
+impl ScanPart {
+    /// The part of `scan` to match: its largest connected component when it has several.
+    pub fn of(scan: &Arc<Mesh>) -> ScanPart {
+        let components = crate::mesh::vertex_components(scan).1.len();
+        match largest_component(scan) {
+            Some((mesh, kept)) => ScanPart { mesh: Arc::new(mesh), kept: Some(kept), components },
+            None => ScanPart { mesh: scan.clone(), kept: None, components },
+        }
+    }
+
+    /// The part's spectrum normalised for matching against a reference of area
+    /// `reference_area` (same units), and the ratio of the area used to the part's own.
+    pub fn normalise(&self, spectrum: Spectrum, reference_area: f64) -> (Spectrum, f64) {
+        let area = normalising_area(&self.mesh, reference_area);
+        let ratio = area / spectrum.area;
+        (spectrum.renormalised(area), ratio)
+    }
+
+    /// A map of the part as a map of the whole `scan`.
+    pub fn extend(&self, scan: &Mesh, map: Vec<usize>) -> Vec<usize> {
+        match &self.kept {
+            Some(k) => extend_map_by_nearest(scan, k, &map),
+            None => map,
+        }
+    }
+
+    /// Vertices of the scan outside the matched part.
+    pub fn unmatched_vertices(&self, scan: &Mesh) -> usize {
+        scan.n_vertices() - self.mesh.n_vertices()
+    }
+}

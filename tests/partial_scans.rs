@@ -1,0 +1,143 @@
+//! Scans as they really arrive: holes, single-view partial scans and fragmented meshes, on the
+//! synthetic family (ground truth through the perturbation's vertex map), with asserted
+//! accuracy floors; and the `perturb` command.
+
+use std::{path::Path, process::Command, sync::Arc};
+
+use shapeforest::{
+    eval::protocol::{run_protocol, Method, ProtocolParams, ProtocolReport, ProtocolShape},
+    forest::RandomForest,
+    geodesic::{HeatMethodSolver, HeatParams},
+    mesh::{perturb, read_mesh, vertex_components, write_mesh, Perturbation},
+    synth::{creature_family, CreatureParams},
+};
+
+fn shapes_and_symmetry(n_vertices: usize, n_shapes: usize) -> (Vec<ProtocolShape>, Vec<usize>) {
+    let fam = creature_family(
+        &CreatureParams { target_vertices: n_vertices, seed: 2, ..Default::default() },
+        n_shapes,
+    )
+    .expect("synthetic family");
+    let shapes = fam
+        .shapes
+        .iter()
+        .enumerate()
+        .map(|(i, m)| ProtocolShape::identity(format!("creature{i}"), Arc::new(m.clone())))
+        .collect();
+    (shapes, fam.symmetry)
+}
+
+fn run(perturbations: Vec<Perturbation>, augment: Vec<Vec<Perturbation>>) -> ProtocolReport {
+    let (shapes, symmetry) = shapes_and_symmetry(3000, 7);
+    let params = ProtocolParams {
+        n_train: 5,
+        max_tests: Some(2),
+        train_once: true,
+        eval_points: 500,
+        forest: RandomForest::params().n_trees(10).seed(1),
+        perturbations,
+        skip_baseline: true,
+        augment,
+        augment_copies: 3,
+        ..ProtocolParams::default()
+    };
+    run_protocol(&shapes, Some(&symmetry), &params, None).expect("protocol")
+}
+
+fn within_005(report: &ProtocolReport) -> f64 {
+    report.summary(Method::ForestRegularized).0.within_005
+}
+
+#[test]
+fn small_holes_barely_change_the_accuracy_and_errors_are_measured_where_the_scan_has_points() {
+    let clean = run(vec![], vec![]);
+    let holed = run(vec![Perturbation::Holes { count: 5, radius: 0.03 }], vec![]);
+    for t in &holed.tests {
+        assert_eq!(t.perturbation, "holes5x0.03");
+        assert!(t.area_fraction < 0.995 && t.area_fraction > 0.9, "area kept {}", t.area_fraction);
+        assert!(t.present_points < 500 && t.present_points > 400, "{} points present", t.present_points);
+        let m = t.errors(Method::ForestRegularized).unwrap();
+        assert_eq!(m.strict.len(), t.present_points);
+        assert_eq!(m.map.len(), t.scan_vertices);
+        assert_eq!(t.evaluated.len(), t.present_points);
+    }
+    let (c, h) = (within_005(&clean), within_005(&holed));
+    println!("clean {c:.3}, five holes {h:.3}");
+    assert!(c > 0.9, "clean scans: {c}");
+    assert!(h > 0.85, "five small holes: {h}");
+}
+
+#[test]
+fn a_single_view_scan_is_matched_once_the_forest_has_seen_single_views() {
+    let view = vec![Perturbation::PARTIAL_VIEW];
+    let plain = run(view.clone(), vec![]);
+    let learned = run(view.clone(), vec![view]);
+    for t in &learned.tests {
+        assert!(t.area_fraction < 0.7, "a single view keeps part of the surface: {}", t.area_fraction);
+        assert!(t.scale_ratio > 1.0, "a partial view is normalised by the reference's area");
+        assert!(t.matched_part_vertices <= t.scan_vertices);
+    }
+    let (p, l) = (within_005(&plain), within_005(&learned));
+    let flips = learned.summary(Method::ForestRegularized).1.unwrap().within_005;
+    println!("single view: trained on complete shapes {p:.3}, with single-view copies {l:.3} (flips allowed {flips:.3})");
+    assert!(l > p + 0.1, "augmentation must help on single views: {p} → {l}");
+    assert!(flips > 0.25, "single view with augmentation, flips allowed: {flips}");
+}
+
+#[test]
+fn heat_distances_work_on_a_scan_in_many_pieces() {
+    let (shapes, _) = shapes_and_symmetry(3000, 2);
+    let scan = perturb(&shapes[0].mesh, &[Perturbation::PARTIAL_VIEW], 4).unwrap().mesh;
+    let (labels, sizes) = vertex_components(&scan);
+    assert!(sizes.len() > 1, "the single view should be in pieces");
+    let solver = HeatMethodSolver::new(&scan, HeatParams::default()).expect("factorises a fragmented scan");
+    let d = solver.distances_from(0).unwrap();
+    for (v, &x) in d.iter().enumerate() {
+        if labels[v] == labels[0] {
+            assert!(x.is_finite() && x >= 0.0, "vertex {v}: {x}");
+        } else {
+            assert!(x.is_infinite(), "vertex {v} is in another piece: {x}");
+        }
+    }
+}
+
+#[test]
+fn the_perturb_command_writes_a_scan_and_its_vertex_map() {
+    let dir = tempfile::tempdir().unwrap();
+    let (shapes, _) = shapes_and_symmetry(2000, 1);
+    let input = dir.path().join("clean.off");
+    write_mesh(&input, &shapes[0].mesh).unwrap();
+    let out = dir.path().join("holed.ply");
+    let o = Command::new(env!("CARGO_BIN_EXE_shapeforest"))
+        .args(["perturb", "--mesh"])
+        .arg(&input)
+        .arg("--out")
+        .arg(&out)
+        .args(["--holes", "4:0.05", "--seed", "3"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("holes4x0.05") && text.contains("boundary loop"), "{text}");
+    let scan = read_mesh(&out).unwrap();
+    let kept: Vec<usize> = std::fs::read_to_string(Path::new(&format!("{}.kept.txt", out.display())))
+        .unwrap()
+        .lines()
+        .map(|l| l.parse().unwrap())
+        .collect();
+    assert_eq!(kept.len(), scan.n_vertices());
+    assert!(scan.n_vertices() < shapes[0].mesh.n_vertices());
+    for (v, &old) in kept.iter().enumerate() {
+        assert_eq!(scan.vertices[v], shapes[0].mesh.vertices[old]);
+    }
+    let bad = Command::new(env!("CARGO_BIN_EXE_shapeforest"))
+        .args(["perturb", "--mesh"])
+        .arg(&input)
+        .arg("--out")
+        .arg(&out)
+        .args(["--holes", "4"])
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("expected N:R"));
+}
