@@ -178,7 +178,7 @@ fn file_errors_name_the_file_and_line() {
 }
 
 #[test]
-fn point_clouds_are_refused_in_every_format() {
+fn tiny_point_clouds_are_refused_in_every_format() {
     let cloud_off = b"OFF\n2 0 0\n0 0 0\n1 1 1\n".as_slice();
     let cloud_obj = b"v 0 0 0\nv 1 1 1\n".as_slice();
     let cloud_ply = b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n\
