@@ -19,9 +19,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use shapeforest::descriptor::WksParams;
 use shapeforest::forest::{hit_ratio, labels_identity, RandomForest, TrainingSet, WksKnn};
-use shapeforest::mesh::Mesh;
 use shapeforest::spectral::{dense_spectrum, Spectrum};
-use shapeforest::synth::icosphere;
 
 const K: usize = 100;
 
@@ -60,33 +58,12 @@ fn synthetic_set(n: usize, shapes: usize) -> TrainingSet {
     .expect("valid synthetic set")
 }
 
+#[path = "../tests/common/bumpy.rs"]
+mod bumpy;
+
 fn bumpy_family(n: usize) -> Vec<Arc<Spectrum>> {
-    let m = icosphere(3, 1.0);
-    let base: Vec<[f64; 3]> = m
-        .vertices
-        .iter()
-        .map(|&[x, y, z]| {
-            let r = 1.0 + 0.3 * x + 0.15 * y * z + 0.2 * z * z * z + 0.1 * (3.0 * y).sin();
-            [r * x, r * y, r * z]
-        })
-        .collect();
-    (0..n)
-        .map(|i| {
-            let t = i as f64;
-            let (sx, sy, sz) =
-                (1.0 + 0.04 * (t * 1.3).sin(), 1.0 + 0.04 * (t * 2.1).cos(), 1.0 - 0.03 * (t * 0.7).sin());
-            let bend = 0.08 * (t * 1.7).sin();
-            let v = base
-                .iter()
-                .map(|&[x, y, z]| {
-                    let (x, y, z) = (sx * x, sy * y, sz * z);
-                    let a = bend * z;
-                    [x * a.cos() - y * a.sin(), x * a.sin() + y * a.cos(), z + 0.05 * bend * x * x]
-                })
-                .collect();
-            Arc::new(dense_spectrum(&Mesh::new(v, m.faces.clone()).expect("mesh"), 30).expect("spectrum"))
-        })
-        .collect()
+    let base = bumpy::bumpy_sphere();
+    (0..n).map(|i| Arc::new(dense_spectrum(&bumpy::bumpy_member(&base, i), 30).expect("spectrum"))).collect()
 }
 
 /// CPU seconds (user + system) used by this process so far, from `/proc/self/stat` (Linux);

@@ -27,6 +27,9 @@ pub enum Error {
     /// A functional-map computation failed.
     #[error(transparent)]
     Fmap(#[from] crate::fmap::FmapError),
+    /// The spatial regulariser failed.
+    #[error(transparent)]
+    Regularizer(#[from] crate::regularizer::RegularizerError),
     /// An evaluation could not be carried out.
     #[error(transparent)]
     Eval(#[from] crate::eval::EvalError),

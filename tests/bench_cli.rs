@@ -1,17 +1,16 @@
 //! `shapeforest bench` through the binary: `--out` writes meshes that read back, a manifest the
 //! peer script can follow and our timings; `--report` joins them with a peer's results.
 
+mod common;
+
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use serde_json::{json, Value};
 use shapeforest::mesh::read_mesh;
 
 fn shapeforest(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_shapeforest"))
-        .args(args)
-        .output()
-        .expect("running the shapeforest binary")
+    common::bin().args(args).output().expect("running the shapeforest binary")
 }
 
 fn read_json(path: &Path) -> Value {

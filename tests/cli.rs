@@ -1,12 +1,10 @@
 //! The command-line tool through its binary: the commands a user runs, and their errors.
 
-use std::process::Command;
+mod common;
 
 use shapeforest::{mesh::write_mesh, synth::icosphere};
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_shapeforest"))
-}
+use common::bin;
 
 #[test]
 fn info_summarises_a_mesh_and_names_a_bad_file() {
@@ -158,20 +156,7 @@ fn run_refuses_a_bad_pipeline_file_naming_stage_and_key() {
 fn train_then_match_pipelines_on_a_data_folder() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    let fam = shapeforest::synth::creature_family(
-        &shapeforest::synth::CreatureParams { target_vertices: 1200, seed: 2, ..Default::default() },
-        4,
-    )
-    .unwrap();
-    let n = fam.template.n_vertices();
-    let labels: String = (0..n).map(|v| format!("{v}\n")).collect();
-    std::fs::create_dir_all(data.join("labeled")).unwrap();
-    std::fs::create_dir_all(data.join("incoming")).unwrap();
-    for i in 0..3 {
-        write_mesh(data.join(format!("labeled/c{i}.off")), &fam.shapes[i]).unwrap();
-        std::fs::write(data.join(format!("labeled/c{i}.labels")), &labels).unwrap();
-    }
-    write_mesh(data.join("incoming/scan.off"), &fam.shapes[3]).unwrap();
+    let n = common::creatures_data_folder(&data, 2);
     let root = env!("CARGO_MANIFEST_DIR");
     for p in ["train", "match"] {
         let out = bin()

@@ -3,7 +3,7 @@
 
 mod common;
 
-use std::{process::Command, sync::Arc};
+use std::sync::Arc;
 
 use shapeforest::{
     eval::{
@@ -65,7 +65,7 @@ fn eval_pairs_file_names_the_line_of_an_unknown_shape() {
         common::labels::write_shape(d, &format!("s{i}"), s);
     }
     std::fs::write(d.join("pairs.txt"), "# pairs\ns1 s2\ns1 nobody\n").unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_shapeforest"))
+    let out = common::bin()
         .args(["eval", "--class"])
         .arg(d)
         .arg("--pairs")

@@ -1,7 +1,9 @@
 //! The evaluation protocol and the `eval` / `match` commands, end to end on small synthetic
 //! data (and on the TOSCA wolf class when ../shared/data is present).
 
-use std::{path::Path, process::Command, sync::Arc};
+mod common;
+
+use std::{path::Path, sync::Arc};
 
 use shapeforest::{
     eval::protocol::{run_protocol, Method, ProtocolParams, ProtocolShape},
@@ -75,9 +77,7 @@ fn protocol_rejects_inconsistent_truth_tables() {
     assert!(e.to_string().contains("at least 2"), "{e}");
 }
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_shapeforest"))
-}
+use common::bin;
 
 #[test]
 fn match_writes_all_outputs_and_the_map_round_trips() {
@@ -194,14 +194,10 @@ fn missing_files_are_named() {
 
 #[test]
 fn wolf_class_from_shared_data() {
-    let data = std::env::var_os("SHAPEFOREST_DATA")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    let dir = data.join("tosca");
-    if !dir.join("wolf0.off").is_file() {
-        println!("SKIPPED: TOSCA wolf meshes not found under ../shared/data/tosca");
+    let Some(dir) = common::shared_data("tosca/wolf0.off").and_then(|p| p.parent().map(Path::to_path_buf))
+    else {
         return;
-    }
+    };
     let out = tempfile::tempdir().unwrap();
     let o = bin()
         .args(["eval", "--quiet", "--no-cache", "--no-symmetry", "--prefix", "wolf"])

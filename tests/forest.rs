@@ -1,6 +1,8 @@
 //! Integration tests of the random forest through the public API, on small synthetic families
 //! (a bumpy sphere under anisotropic stretches and bends, sharing vertex indexing).
 
+mod common;
+
 use std::sync::Arc;
 
 use shapeforest::descriptor::WksParams;
@@ -10,41 +12,10 @@ use shapeforest::forest::{
 };
 use shapeforest::mesh::Mesh;
 use shapeforest::spectral::{dense_spectrum, Spectrum};
-use shapeforest::synth::icosphere;
 
 const K: usize = 30;
 
-/// An asymmetric bumpy sphere (no isometries to confuse labels).
-fn base() -> Mesh {
-    let m = icosphere(3, 1.0);
-    let vertices = m
-        .vertices
-        .iter()
-        .map(|&[x, y, z]| {
-            let r = 1.0 + 0.3 * x + 0.15 * y * z + 0.2 * z * z * z + 0.1 * (3.0 * y).sin();
-            [r * x, r * y, r * z]
-        })
-        .collect();
-    Mesh::new(vertices, m.faces.clone()).unwrap()
-}
-
-/// Member `i` of the family: an anisotropic stretch and a smooth bend of the base.
-fn member(base: &Mesh, i: usize) -> Mesh {
-    let t = i as f64;
-    let (sx, sy, sz) =
-        (1.0 + 0.04 * (t * 1.3).sin(), 1.0 + 0.04 * (t * 2.1).cos(), 1.0 - 0.03 * (t * 0.7).sin());
-    let bend = 0.08 * (t * 1.7).sin();
-    let vertices = base
-        .vertices
-        .iter()
-        .map(|&[x, y, z]| {
-            let (x, y, z) = (sx * x, sy * y, sz * z);
-            let a = bend * z;
-            [x * a.cos() - y * a.sin(), x * a.sin() + y * a.cos(), z + 0.05 * bend * x * x]
-        })
-        .collect();
-    Mesh::new(vertices, base.faces.clone()).unwrap()
-}
+use common::bumpy::{bumpy_member as member, bumpy_sphere as base};
 
 struct Family {
     base: Mesh,

@@ -4,6 +4,8 @@
 //! Tolerances are stated per method next to each assertion; the measured values they guard
 //! are listed in the `geodesic` module documentation.
 
+mod common;
+
 use shapeforest::geodesic::{
     dijkstra_distances, farthest_point_sampling_euclidean, farthest_point_sampling_geodesic,
     fast_marching_distances, GeodesicError, HeatBoundary, HeatMethodSolver, HeatParams, SamplingMetric,
@@ -245,13 +247,8 @@ fn read_off(path: &std::path::Path) -> Option<Mesh> {
 
 #[test]
 fn tosca_wolf_heat_agrees_with_fast_marching() {
-    let data = std::env::var_os("SHAPEFOREST_DATA")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    let Some(wolf) = read_off(&data.join("tosca/wolf0.off")) else {
-        eprintln!("SKIPPED tosca_wolf_heat_agrees_with_fast_marching: TOSCA wolf0.off not found under ../shared/data");
-        return;
-    };
+    let Some(path) = common::shared_data("tosca/wolf0.off") else { return };
+    let wolf = read_off(&path).expect("TOSCA wolf0.off reads");
     let sqrt_area = wolf.surface_area().sqrt();
     let solver = HeatMethodSolver::new(&wolf, HeatParams::default()).unwrap();
     let sources = [0, 1000, 2000, 3000];

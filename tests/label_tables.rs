@@ -9,9 +9,7 @@ use std::{path::Path, process::Command};
 
 use common::labels::{shuffled_family, vts, write_shape, Shuffled};
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_shapeforest"))
-}
+use common::bin;
 
 fn read_map(path: &Path) -> Vec<usize> {
     std::fs::read_to_string(path)

@@ -2,8 +2,9 @@
 //! name the file, robustness against arbitrary and damaged bytes, and real TOSCA data when
 //! present (`$SHAPEFOREST_DATA`, else `../shared/data` beside the crate).
 
+mod common;
+
 use std::io::Write;
-use std::path::{Path, PathBuf};
 
 use proptest::prelude::*;
 use shapeforest::mesh::{
@@ -354,27 +355,9 @@ proptest! {
 
 // ---------------------------------------------------------------- real data, when present
 
-fn data_dir() -> Option<PathBuf> {
-    let dir = match std::env::var_os("SHAPEFOREST_DATA") {
-        Some(d) => PathBuf::from(d),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"),
-    };
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        println!("SKIPPED: no mesh data at {} (set SHAPEFOREST_DATA to the data folder)", dir.display());
-        None
-    }
-}
-
 #[test]
 fn real_tosca_wolf_reads_with_known_counts_and_topology() {
-    let Some(dir) = data_dir() else { return };
-    let path = dir.join("tosca/wolf0.off");
-    if !path.exists() {
-        println!("SKIPPED: {} is absent", path.display());
-        return;
-    }
+    let Some(path) = common::shared_data("tosca/wolf0.off") else { return };
     let (m, report) = read_mesh_with_report(&path).unwrap();
     assert_eq!((m.n_vertices(), m.n_faces()), (4344, 8684));
     let s = &report.summary;
@@ -387,12 +370,7 @@ fn real_tosca_wolf_reads_with_known_counts_and_topology() {
 
 #[test]
 fn real_tosca_r5k_gz_reads_with_known_counts() {
-    let Some(dir) = data_dir() else { return };
-    let path = dir.join("tosca-r5k/TOSCA_Isometric/vtx_5k/cat0.off.gz");
-    if !path.exists() {
-        println!("SKIPPED: {} is absent", path.display());
-        return;
-    }
+    let Some(path) = common::shared_data("tosca-r5k/TOSCA_Isometric/vtx_5k/cat0.off.gz") else { return };
     let (m, report) = read_mesh_with_report(&path).unwrap();
     assert_eq!((m.n_vertices(), m.n_faces()), (5000, 9996));
     assert_eq!((report.summary.n_edges, report.summary.euler_characteristic), (14994, 2));
@@ -404,12 +382,8 @@ fn real_tosca_r5k_gz_reads_with_known_counts() {
 
 #[test]
 fn every_real_tosca_r5k_mesh_reads_and_its_ground_truth_indices_fit() {
-    let Some(dir) = data_dir() else { return };
-    let shapes = dir.join("tosca-r5k/TOSCA_Isometric/vtx_5k");
-    let Ok(entries) = std::fs::read_dir(&shapes) else {
-        println!("SKIPPED: {} is absent", shapes.display());
-        return;
-    };
+    let Some(shapes) = common::shared_data("tosca-r5k/TOSCA_Isometric/vtx_5k") else { return };
+    let entries = std::fs::read_dir(&shapes).expect("the tosca-r5k folder lists");
     let mut n_read = 0;
     for entry in entries {
         let path = entry.unwrap().path();

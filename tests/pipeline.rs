@@ -13,8 +13,8 @@ use std::{
 };
 
 use shapeforest::pipeline::{
-    daemon::run_spec, DataDir, Emitter, Envelope, Failure, FailureKind, Job, LiveModel, NoModel, Pipeline,
-    PipelineSpec, RunOptions, Shutdown, Sink, Source, Stage,
+    self, daemon::run_spec, DataDir, Emitter, Envelope, Failure, FailureKind, Job, LiveModel, NoModel,
+    Pipeline, PipelineSpec, RunOptions, Shutdown, Sink, Source, Stage,
 };
 
 #[test]
@@ -138,7 +138,7 @@ struct Numbers {
 
 impl Source for Numbers {
     type Out = usize;
-    fn run(&mut self, out: &Emitter<usize>) -> Result<(), String> {
+    fn run(&mut self, out: &Emitter<usize>) -> Result<(), pipeline::Error> {
         for i in 0..self.n {
             let now = self.alive.fetch_add(1, Ordering::SeqCst) + 1;
             self.peak.fetch_max(now, Ordering::SeqCst);
@@ -173,15 +173,22 @@ struct Collect {
 
 impl Sink for Collect {
     type In = usize;
-    fn consume(&mut self, _job: Job, body: Result<usize, Failure>) -> Result<(), String> {
+    fn consume(&mut self, _job: Job, body: Result<usize, Failure>) -> Result<(), pipeline::Error> {
         self.alive.fetch_sub(1, Ordering::SeqCst);
         self.got.lock().unwrap().push(body);
         Ok(())
     }
 }
 
+/// With 1 and with 2 worker threads (timely repeats its tests across worker counts).
 #[test]
 fn a_panicking_job_fails_alone_and_bounded_channels_hold_back_the_source() {
+    for workers in [1, 2] {
+        panicking_job_fails_alone(workers);
+    }
+}
+
+fn panicking_job_fails_alone(workers: usize) {
     let tmp = tempfile::tempdir().unwrap();
     let alive = Arc::new(AtomicUsize::new(0));
     let peak = Arc::new(AtomicUsize::new(0));
@@ -190,7 +197,7 @@ fn a_panicking_job_fails_alone_and_bounded_channels_hold_back_the_source() {
     let nums = p.source("numbers", Numbers { n: 60, alive: alive.clone(), peak: peak.clone() });
     let squares = p.stage("square", nums, Fragile);
     p.sink("collect", squares, Collect { alive, got: got.clone() });
-    let report = p.run(RunOptions::default()).unwrap();
+    let report = p.run(RunOptions { worker_threads: Some(workers), ..Default::default() }).unwrap();
     let got = got.lock().unwrap();
     assert_eq!(got.len(), 60, "every job reaches the sink");
     let failures: Vec<&Failure> = got.iter().filter_map(|r| r.as_ref().err()).collect();
@@ -205,6 +212,132 @@ fn a_panicking_job_fails_alone_and_bounded_channels_hold_back_the_source() {
     let square = report.stages.iter().find(|s| s.name == "square").unwrap();
     assert_eq!((square.jobs, square.failed), (60, 20));
     assert!(!report.interrupted);
+}
+
+#[test]
+fn an_output_feeds_every_consumer_attached_to_it() {
+    for workers in [1, 2] {
+        let tmp = tempfile::tempdir().unwrap();
+        let (alive, peak) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicUsize::new(0)));
+        let (a, b) = (Arc::new(Mutex::new(Vec::new())), Arc::new(Mutex::new(Vec::new())));
+        let mut p = Pipeline::new(DataDir::new(tmp.path()), Arc::new(LiveModel::new())).with_capacity(1);
+        let nums = p.source("numbers", Numbers { n: 12, alive: Arc::new(AtomicUsize::new(0)), peak });
+        p.sink("first", nums.clone(), Collect { alive: alive.clone(), got: a.clone() });
+        p.sink("second", nums, Collect { alive: Arc::new(AtomicUsize::new(100)), got: b.clone() });
+        let report = p.run(RunOptions { worker_threads: Some(workers), ..Default::default() }).unwrap();
+        let ok = |v: &Arc<Mutex<Vec<Result<usize, Failure>>>>| {
+            v.lock().unwrap().iter().map(|r| *r.as_ref().unwrap()).collect::<Vec<_>>()
+        };
+        assert_eq!(ok(&a), (0..12).collect::<Vec<_>>(), "{workers} workers");
+        assert_eq!(ok(&b), (0..12).collect::<Vec<_>>(), "{workers} workers");
+        assert_eq!(report.completed(), 24);
+    }
+}
+
+#[test]
+fn a_pipeline_file_may_fan_an_output_out_to_several_stages() {
+    // `spectra` feeds the trainer and the descriptor; `fmap` feeds two sinks.
+    let text = r#"
+name = "fan-out"
+stage = [
+    { name = "shapes", type = "synthetic" },
+    { name = "spectra", type = "spectral", input = "shapes" },
+    { name = "trainer", type = "trainer", input = "spectra" },
+    { name = "descriptor", type = "descriptor", input = "spectra" },
+    { name = "forest", type = "forest", input = "descriptor" },
+    { name = "matcher", type = "matcher", input = "forest" },
+    { name = "fmap", type = "fmap", input = "matcher" },
+    { name = "results", type = "match-sink", input = "fmap" },
+    { name = "scores", type = "eval-sink", input = "fmap" },
+]
+"#;
+    let spec = PipelineSpec::from_toml(text, "fan-out.toml").unwrap();
+    assert_eq!(spec.stages.len(), 9);
+    assert!(spec.has_type("trainer") && spec.has_type("descriptor"));
+}
+
+#[test]
+fn a_stage_type_of_ones_own_is_one_registration() {
+    use shapeforest::pipeline::{parse_config, stages::SpectralConfig, Registry, StageType};
+    // The built-in `spectral` under another name: registered, it parses like any type.
+    const ALIAS: StageType = StageType {
+        name: "eigen",
+        ports: (Some(pipeline::PortType::Shape), Some(pipeline::PortType::Spectrum)),
+        parse: parse_config::<SpectralConfig>,
+    };
+    let text = "name = \"x\"\n[[stage]]\nname = \"s\"\ntype = \"synthetic\"\n[[stage]]\nname = \"e\"\ntype = \"eigen\"\ninput = \"s\"\nk = 30\n[[stage]]\nname = \"t\"\ntype = \"trainer\"\ninput = \"e\"\n";
+    let e = PipelineSpec::from_toml(text, "x.toml").unwrap_err().to_string();
+    assert!(e.contains("unknown stage type `eigen`") && e.contains("spectral"), "{e}");
+    let spec = PipelineSpec::from_toml_with(text, "x.toml", &Registry::builtin().with(ALIAS)).unwrap();
+    assert_eq!(spec.stage("e").and_then(|s| s.config::<SpectralConfig>()).map(|c| c.k), Some(30));
+}
+
+/// Every message, model and stage type can cross threads and live as long as the pipeline.
+#[test]
+fn messages_models_and_stages_are_send_sync_and_static() {
+    fn check<T: Send + Sync + 'static>() {}
+    use shapeforest::pipeline::{stages::*, *};
+    check::<Envelope<InputFile>>();
+    check::<Envelope<Shape>>();
+    check::<Envelope<SpectralShape>>();
+    check::<Envelope<DescribedShape>>();
+    check::<Envelope<PredictedShape>>();
+    check::<Envelope<SparselyMatched>>();
+    check::<Envelope<MatchedShape>>();
+    check::<Failure>();
+    check::<ModelState>();
+    check::<LiveModel>();
+    check::<PipelineSpec>();
+    check::<pipeline::Error>();
+    fn check_send<T: Send + 'static>() {}
+    check_send::<FolderSource>();
+    check_send::<WatchSource>();
+    check_send::<SyntheticSource>();
+    check_send::<IngestStage>();
+    check_send::<SpectralStage>();
+    check_send::<DescriptorStage>();
+    check_send::<ForestStage>();
+    check_send::<MatcherStage>();
+    check_send::<FmapStage>();
+    check_send::<MatchSink>();
+    check_send::<EvalSink>();
+    check_send::<TrainerSink>();
+}
+
+/// A real stage alone, between in-memory ports: send, receive, drop the sender, and the
+/// output closes.
+#[test]
+fn the_spectral_stage_alone_between_in_memory_ports() {
+    use shapeforest::pipeline::{
+        actor::run_stage,
+        stages::{SpectralConfig, SpectralStage},
+        InProcess, Output, PipelineContext, Shape, Transport,
+    };
+    let ctx = PipelineContext::new();
+    let (tx_in, rx_in) = InProcess.connect::<Shape>("test", "spectral", 2);
+    let (tx_out, rx_out) = InProcess.connect("spectral", "test", 2);
+    let stage = SpectralStage::new(&SpectralConfig { k: 20, cache: false }, None).unwrap();
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build().unwrap();
+    rt.block_on(async {
+        let metrics = ctx.metrics_for("spectral");
+        let task =
+            tokio::spawn(run_stage(stage, "spectral".into(), rx_in, Output::new(vec![tx_out]), ctx, metrics));
+        let mesh = Arc::new(shapeforest::synth::icosphere(2, 1.0));
+        let shape = Shape { mesh: mesh.clone(), labels: None };
+        tx_in.send(Envelope { job: Job::generated(1, "ball"), body: Ok(shape) }).await.unwrap();
+        let bad = Shape { mesh: Arc::new(shapeforest::synth::icosphere(0, 1.0)), labels: None };
+        tx_in.send(Envelope { job: Job::generated(2, "tiny"), body: Ok(bad) }).await.unwrap();
+        drop(tx_in);
+        let first = rx_out.recv().await.expect("a result");
+        let s = first.body.expect("a spectrum");
+        assert_eq!((s.spectrum.k(), s.mesh().n_vertices()), (20, 162));
+        assert_eq!(first.job.stage_seconds.len(), 1);
+        let second = rx_out.recv().await.expect("the second job");
+        let f = second.body.expect_err("12 vertices cannot give 20 eigenpairs");
+        assert_eq!((f.stage.as_str(), f.kind), ("spectral", FailureKind::BadInput));
+        assert!(rx_out.recv().await.is_none(), "the output closes once the input has");
+        task.await.unwrap();
+    });
 }
 
 #[test]
@@ -276,7 +409,8 @@ fn the_evaluation_pipeline_scores_held_out_synthetic_shapes() {
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/match.toml")).unwrap();
     let spec = PipelineSpec::from_toml(&text, "match.toml").unwrap();
     let empty = tempfile::tempdir().unwrap();
-    let err = run_spec(&spec, Some(empty.path()), RunOptions::default(), None, |_| Ok(())).unwrap_err();
+    let err =
+        run_spec(&spec, Some(empty.path()), RunOptions::default(), None, |_| Ok(())).unwrap_err().to_string();
     assert!(err.contains("no model in") && err.contains("train.toml"), "{err}");
 }
 

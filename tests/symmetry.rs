@@ -1,6 +1,8 @@
 //! Dense symmetry maps derived from sparse symmetric feature points, checked against the exact
 //! mirror map of the synthetic creature.
 
+mod common;
+
 use std::sync::Arc;
 
 use shapeforest::{
@@ -61,12 +63,9 @@ fn derived_symmetry_of_the_creature_matches_its_exact_mirror() {
     assert!(v.involution_within_005 >= 0.9);
 }
 
-/// The shared data folder: `SHAPEFOREST_DATA`, else `../shared/data` beside the project.
+/// The shared data folder, when its TOSCA set is there.
 fn data_dir() -> Option<std::path::PathBuf> {
-    let dir = std::env::var_os("SHAPEFOREST_DATA")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    dir.join("tosca").is_dir().then_some(dir)
+    common::shared_data("tosca").map(|_| common::data_root())
 }
 
 fn read_one_based(path: &std::path::Path) -> Vec<usize> {
@@ -83,15 +82,12 @@ fn read_one_based(path: &std::path::Path) -> Vec<usize> {
 /// from the 8 sparse feature pairs of `wolf.sym.info`.
 #[test]
 fn derived_symmetry_of_tosca_wolf_agrees_with_its_mirrored_ground_truth() {
-    let Some(data) = data_dir() else {
-        println!("SKIPPED: shared data (../shared/data) not found");
+    let Some(data) = data_dir() else { return };
+    let Some(corres) = common::shared_data("tosca-r5k/TOSCA_Isometric/vtx_5k/corres/wolf0.sym.vts")
+        .and_then(|p| p.parent().map(|d| d.to_path_buf()))
+    else {
         return;
     };
-    let corres = data.join("tosca-r5k/TOSCA_Isometric/vtx_5k/corres");
-    if !corres.join("wolf0.sym.vts").is_file() {
-        println!("SKIPPED: tosca-r5k wolf0 correspondences not found");
-        return;
-    }
     let mesh = shapeforest::mesh::read_mesh(data.join("tosca/wolf0.off")).unwrap();
     let pid: Vec<usize> = std::fs::read_to_string(data.join("tosca/wolf.pid"))
         .unwrap()

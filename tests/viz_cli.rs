@@ -2,13 +2,11 @@
 //! match pipeline (the daemon's sink), `shapeforest view` on both kinds of result folder, and
 //! the evaluation's `index.html` with a snapshot and a view per test shape.
 
+mod common;
+
 use std::{path::Path, process::Command};
 
-use shapeforest::{mesh::write_mesh, synth};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_shapeforest"))
-}
+use common::bin;
 
 fn run(cmd: &mut Command) -> String {
     let out = cmd.output().unwrap();
@@ -46,20 +44,7 @@ fn assert_both_drawn(path: &Path) {
 fn match_results_get_a_snapshot_and_view_writes_a_page() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    let fam = synth::creature_family(
-        &synth::CreatureParams { target_vertices: 1200, seed: 4, ..Default::default() },
-        4,
-    )
-    .unwrap();
-    let n = fam.template.n_vertices();
-    let labels: String = (0..n).map(|v| format!("{v}\n")).collect();
-    std::fs::create_dir_all(data.join("labeled")).unwrap();
-    std::fs::create_dir_all(data.join("incoming")).unwrap();
-    for i in 0..3 {
-        write_mesh(data.join(format!("labeled/c{i}.off")), &fam.shapes[i]).unwrap();
-        std::fs::write(data.join(format!("labeled/c{i}.labels")), &labels).unwrap();
-    }
-    write_mesh(data.join("incoming/scan.off"), &fam.shapes[3]).unwrap();
+    common::creatures_data_folder(&data, 4);
     let root = env!("CARGO_MANIFEST_DIR");
     for p in ["train", "match"] {
         run(bin().arg("run").arg(format!("{root}/pipelines/{p}.toml")).arg("--data-dir").arg(&data));
@@ -75,15 +60,15 @@ fn match_results_get_a_snapshot_and_view_writes_a_page() {
 
     // `shapeforest match` writes SCAN.png too, and its folder can be viewed.
     let out = dir.path().join("m");
-    run(bin()
-        .args(["match", "--model"])
-        .arg(data.join("models/model-v000001.sfm"))
-        .arg("--reference")
-        .arg(data.join("labeled/c0.off"))
-        .arg("--mesh")
-        .arg(data.join("incoming/scan.off"))
-        .arg("--out")
-        .arg(&out));
+    // `shapeforest match` of the folder's scan onto its reference c0 (and `extra` arguments).
+    let match_scan = |out: &Path, extra: &[&std::ffi::OsStr]| {
+        let mut cmd = bin();
+        cmd.args(["match", "--model"]).arg(data.join("models/model-v000001.sfm"));
+        cmd.arg("--reference").arg(data.join("labeled/c0.off"));
+        cmd.arg("--mesh").arg(data.join("incoming/scan.off")).args(extra).arg("--out").arg(out);
+        run(&mut cmd)
+    };
+    match_scan(&out, &[]);
     assert_both_drawn(&out.join("scan.png"));
     // With a SCAN.errors.csv beside the map the page gets the heat map and the curve.
     std::fs::write(out.join("scan.errors.csv"), "vertex,error\n0,0.01\n7,0.3\n").unwrap();
@@ -93,17 +78,8 @@ fn match_results_get_a_snapshot_and_view_writes_a_page() {
 
     // A scan-to-scan map (`match --to B`): the page shows the scan against B.
     let out2 = dir.path().join("m2");
-    run(bin()
-        .args(["match", "--model"])
-        .arg(data.join("models/model-v000001.sfm"))
-        .arg("--reference")
-        .arg(data.join("labeled/c0.off"))
-        .arg("--mesh")
-        .arg(data.join("incoming/scan.off"))
-        .arg("--to")
-        .arg(data.join("labeled/c1.off"))
-        .arg("--out")
-        .arg(&out2));
+    let b = data.join("labeled/c1.off");
+    match_scan(&out2, &["--to".as_ref(), b.as_os_str()]);
     assert_both_drawn(&out2.join("scan.png"));
     run(bin().arg("view").arg(&out2));
     let page = std::fs::read_to_string(out2.join("view.html")).unwrap();

@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use shapeforest::{
     mesh::{read_mesh_with_report, Mesh},
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// Mesh file extensions the readers understand (optionally followed by `.gz`).
@@ -47,14 +47,10 @@ pub fn mesh_files(dir: &Path, prefix: &str) -> Result<Vec<PathBuf>> {
     Ok(out)
 }
 
-/// Short display name of a mesh file: the file name without mesh extensions.
+/// Short display name of a mesh file: the file name without mesh extensions (the one stem
+/// rule, [`shapeforest::pipeline::shape_stem`]).
 pub fn shape_name(path: &Path) -> String {
-    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("shape");
-    let name = name.strip_suffix(".gz").unwrap_or(name);
-    match name.rsplit_once('.') {
-        Some((stem, _)) if !stem.is_empty() => stem.to_string(),
-        _ => name.to_string(),
-    }
+    shapeforest::pipeline::shape_stem(path)
 }
 
 /// Reads a mesh, logging the reader's warnings.
@@ -74,10 +70,7 @@ pub fn spectra(meshes: &[&Mesh], k: usize, cache: Option<&Path>, label: &str) ->
     let out: Result<Vec<_>> = meshes
         .par_iter()
         .map(|m| {
-            let s = match &cache {
-                Some(c) => c.get_or_compute(m, &params)?,
-                None => compute_spectrum(m, &params)?,
-            };
+            let s = spectrum_cached(m, &params, cache.as_ref())?;
             bar.inc(1);
             Ok(Arc::new(s))
         })

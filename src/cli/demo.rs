@@ -86,7 +86,9 @@ fn wait_for(
     what: &str,
     total: u64,
     deadline: Instant,
-    daemon: &thread::JoinHandle<std::result::Result<shapeforest::pipeline::PipelineReport, String>>,
+    daemon: &thread::JoinHandle<
+        std::result::Result<shapeforest::pipeline::PipelineReport, shapeforest::pipeline::Error>,
+    >,
     mut count: impl FnMut() -> u64,
 ) -> Result<()> {
     let bar = progress(total, what);
@@ -135,14 +137,15 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let shutdown = Shutdown::new();
     let daemon = {
         let (spec, out, sd) = (spec.clone(), args.out.clone(), shutdown.clone());
-        let options = RunOptions { handle_signals: true, ..Default::default() };
+        let options =
+            RunOptions { handle_signals: true, on_signal: Some(super::run::on_signal), ..Default::default() };
         thread::spawn(move || run_spec(&spec, Some(&out), options, Some(sd), |_| Ok(())))
     };
     let deadline = Instant::now() + Duration::from_secs(args.timeout);
     while !data.labeled().is_dir() || !data.incoming().is_dir() {
         if daemon.is_finished() {
             let r = daemon.join().map_err(|_| anyhow!("the daemon panicked"))?;
-            bail!("the daemon stopped at start: {}", r.err().unwrap_or_default());
+            bail!("the daemon stopped at start: {}", r.err().map(|e| e.to_string()).unwrap_or_default());
         }
         thread::sleep(Duration::from_millis(20));
     }

@@ -149,6 +149,10 @@ pub struct EvalArgs {
     /// Normalise a partial scan by its own area instead of the reference's (an ablation).
     #[arg(long)]
     pub own_area: bool,
+    /// Leave the holes of a perturbed scan open (an ablation; by default holes of perimeter up
+    /// to 0.35·√area of the reference are closed before its spectrum is computed).
+    #[arg(long)]
+    pub keep_holes: bool,
     /// Augment every training set with perturbed copies of its shapes: `partial-view`,
     /// `holes:N:R` or `crop:R` (repeatable; --augment-copies copies of each shape per kind).
     #[arg(long, value_name = "KIND", value_parser = parse_augment)]
@@ -598,6 +602,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         skip_baseline: args.no_baseline,
         largest_component: !args.whole_scan,
         partial_scale: !args.own_area,
+        fill_holes: (!args.keep_holes).then_some(0.35),
         augment: args.augment.iter().map(|&p| vec![p]).collect(),
         augment_copies: args.augment_copies,
         ..ProtocolParams::default()
@@ -778,25 +783,23 @@ pub(super) fn write_file(path: &Path, text: &str) -> Result<()> {
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
-fn json_list(v: &[usize]) -> String {
-    let items: Vec<String> = v.iter().map(|x| x.to_string()).collect();
-    format!("[{}]", items.join(","))
+/// One test/reference pair of `peer/pairs.json` (read by `scripts/pyfm_peer.py`).
+#[derive(serde::Serialize)]
+struct PeerPair {
+    test: String,
+    reference: String,
+    test_mesh: String,
+    reference_mesh: String,
+    eval_test_vertices: Vec<usize>,
+    eval_reference_vertices: Vec<usize>,
+    eval_reference_mirror_vertices: Option<Vec<usize>>,
 }
 
-fn json_str(s: &str) -> String {
-    let mut out = String::from("\"");
-    for c in s.chars() {
-        match c {
-            '"' => out.push_str("\\\""),
-            '\\' => out.push_str("\\\\"),
-            c if (c as u32) < 0x20 => {
-                let _ = write!(out, "\\u{:04x}", c as u32);
-            }
-            c => out.push(c),
-        }
-    }
-    out.push('"');
-    out
+/// `peer/pairs.json`.
+#[derive(serde::Serialize)]
+struct PeerPairs {
+    pairs: Vec<PeerPair>,
+    reference_symmetry: Option<Vec<usize>>,
 }
 
 fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usize) -> Result<()> {
@@ -862,8 +865,8 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
     let peer = out.join("peer");
     std::fs::create_dir_all(&peer).with_context(|| format!("cannot create {}", peer.display()))?;
     let abs = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
-    let mut json = String::from("{\n  \"pairs\": [\n");
-    for (i, t) in report.tests.iter().enumerate() {
+    let mut pairs = Vec::with_capacity(report.tests.len());
+    for t in &report.tests {
         let test = &class.shapes[t.test];
         let reference = &class.shapes[t.reference];
         // A perturbed scan is written beside the results; the peer maps it and is scored at the
@@ -883,32 +886,24 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
             ),
         };
         let ev_ref: Vec<usize> = labels.iter().map(|&k| reference.truth[k]).collect();
-        let ev_mirror = match &class.symmetry {
-            Some(sym) => json_list(&labels.iter().map(|&k| reference.truth[sym[k]]).collect::<Vec<_>>()),
-            None => "null".into(),
-        };
-        let _ = write!(
-            json,
-            "    {{\"test\": {}, \"reference\": {}, \"test_mesh\": {}, \"reference_mesh\": {},\n     \"eval_test_vertices\": {},\n     \"eval_reference_vertices\": {},\n     \"eval_reference_mirror_vertices\": {}}}{}\n",
-            json_str(&test.name),
-            json_str(&reference.name),
-            json_str(&abs(&test_file).display().to_string()),
-            json_str(&abs(&class.files[t.reference]).display().to_string()),
-            json_list(&ev_test),
-            json_list(&ev_ref),
-            ev_mirror,
-            if i + 1 < report.tests.len() { "," } else { "" }
-        );
+        let ev_mirror =
+            class.symmetry.as_ref().map(|sym| labels.iter().map(|&k| reference.truth[sym[k]]).collect());
+        pairs.push(PeerPair {
+            test: test.name.clone(),
+            reference: reference.name.clone(),
+            test_mesh: abs(&test_file).display().to_string(),
+            reference_mesh: abs(&class.files[t.reference]).display().to_string(),
+            eval_test_vertices: ev_test,
+            eval_reference_vertices: ev_ref,
+            eval_reference_mirror_vertices: ev_mirror,
+        });
     }
-    json.push_str("  ],\n");
-    match &class.symmetry {
+    let reference_symmetry = match &class.symmetry {
         // Identity truth tables: the label symmetry is the reference's vertex symmetry.
-        Some(sym) if !class.per_label => {
-            let _ = writeln!(json, "  \"reference_symmetry\": {}", json_list(sym));
-        }
-        _ => json.push_str("  \"reference_symmetry\": null\n"),
-    }
-    json.push_str("}\n");
+        Some(sym) if !class.per_label => Some(sym.clone()),
+        _ => None,
+    };
+    let json = serde_json::to_string(&PeerPairs { pairs, reference_symmetry })? + "\n";
     write_file(&peer.join("pairs.json"), &json)?;
     Ok(())
 }
@@ -923,10 +918,5 @@ mod tests {
         assert_eq!(suffix_number("cat", "cat"), Some(0));
         assert_eq!(suffix_number("centaur0", "cat"), None);
         assert_eq!(suffix_number("catx", "cat"), None);
-    }
-
-    #[test]
-    fn json_strings_are_escaped() {
-        assert_eq!(json_str("a\"b\\c"), "\"a\\\"b\\\\c\"");
     }
 }

@@ -28,7 +28,7 @@ use shapeforest::{
     forest::{per_vertex_labels, read_label_map, read_per_label_rows, reference_table, RandomForest},
     mesh::{coordinate_colors, read_mesh, write_colored_ply, Mesh},
     regularizer::{regularize, regularize_pair, PairParams, PreparedShape, RegularizerParams, ScanPart},
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// Arguments of `shapeforest match`.
@@ -137,11 +137,8 @@ fn spectrum(
     cache: Option<&SpectrumCache>,
     path: &Path,
 ) -> Result<Spectrum> {
-    let r = match cache {
-        Some(c) => c.get_or_compute(mesh, params),
-        None => compute_spectrum(mesh, params),
-    };
-    r.with_context(|| format!("cannot compute the spectrum of {}", path.display()))
+    spectrum_cached(mesh, params, cache)
+        .with_context(|| format!("cannot compute the spectrum of {}", path.display()))
 }
 
 fn write_colored(path: &Path, mesh: &Mesh, colors: &[[u8; 3]]) -> Result<()> {
@@ -273,7 +270,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
 
     let confidence = prediction.mean_confidence();
     let tm = &dense.timings;
-    let report = serde_json::json!({
+    let details = serde_json::json!({
         "mesh": args.mesh.display().to_string(),
         "reference": args.reference.display().to_string(),
         "to": args.to.as_ref().map(|p| p.display().to_string()),
@@ -290,13 +287,6 @@ pub fn run(args: MatchArgs) -> Result<()> {
         "reference_vertices": reference.n_vertices(),
         "to_vertices": target.as_ref().map(|t| t.0.n_vertices()),
         "n_matches": dense.matches.len(),
-        "orientation_score": dense.orientation_score,
-        "mirror_rejected": dense.mirror_rejected,
-        "grown_anchors": dense.grown_anchors,
-        "dense_orientation_agreement": dense.dense_orientation,
-        "reoriented": dense.reoriented,
-        "mean_forest_confidence": confidence,
-        "mean_forest_support": prediction.mean_support(),
         "timings_s": {
             "load": load_s,
             "spectrum_mesh": spectrum_scan_s,
@@ -314,7 +304,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
             "total": t_all.elapsed().as_secs_f64(),
         },
     });
-    let json = serde_json::to_string_pretty(&report)? + "\n";
+    let json = shapeforest::pipeline::MatchReport::new(&dense, &prediction, details).to_json()?;
     let report_path = args.out.join(format!("{scan_name}.report.json"));
     std::fs::write(&report_path, json).with_context(|| format!("cannot write {}", report_path.display()))?;
     println!(

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{anyhow, Result};
 use clap::Args;
-use shapeforest::pipeline::{bootstrap_synthetic, daemon::run_spec, PipelineSpec, RunOptions};
+use shapeforest::pipeline::{bootstrap_synthetic, daemon::run_spec, PipelineSpec, RunOptions, SignalEvent};
 
 /// The daemon's pipeline when `pipelines/watch.toml` is not at hand (e.g. an installed binary).
 const DEFAULT_WATCH: &str = include_str!("../../pipelines/watch.toml");
@@ -44,9 +44,25 @@ pub struct WatchArgs {
     pub stop_after: Option<f64>,
 }
 
+/// What the binary does on Ctrl-C / SIGTERM: says what happens; a second signal exits at once
+/// (status 130), leaving claimed inputs for the next start.
+pub(super) fn on_signal(event: SignalEvent) {
+    match event {
+        SignalEvent::ShuttingDown => {
+            eprintln!("shapeforest: shutting down — finishing jobs in flight (signal again to exit at once)")
+        }
+        SignalEvent::Again => {
+            eprintln!("shapeforest: exiting now; claimed inputs are taken up at the next start");
+            std::process::exit(130);
+        }
+    }
+}
+
 fn options(stop_after: Option<f64>) -> RunOptions {
     RunOptions {
         handle_signals: true,
+        on_signal: Some(on_signal),
+        worker_threads: None,
         stop_after: stop_after.map(|s| std::time::Duration::from_secs_f64(s.max(0.0))),
         metrics_every: Some(std::time::Duration::from_secs(60)),
     }
@@ -61,8 +77,10 @@ pub fn run(args: RunArgs) -> Result<()> {
             eprintln!("shapeforest: {n}");
         }
         Ok(())
-    })
-    .map_err(|e| anyhow!(e))?;
+    })?;
+    for s in &report.summary {
+        print!("{s}");
+    }
     println!("{}", report.table());
     let (done, rejected) = (report.completed(), report.rejected());
     println!(
@@ -122,8 +140,7 @@ pub fn watch(args: WatchArgs) -> Result<()> {
             );
         }
         Ok(())
-    })
-    .map_err(|e| anyhow!(e))?;
+    })?;
     println!("{}", report.table());
     println!("stopped after {:.1} s; model version {}", report.elapsed_s, report.model_version);
     Ok(())

@@ -29,7 +29,7 @@ mod parametric;
 mod wks;
 
 pub use hks::{heat_kernel_signature, hks_times, HksParams};
-pub use orientation::orientation_descriptors;
+pub use orientation::{band_pass_functions, orientation_band_energies, orientation_descriptors};
 pub use parametric::{dot_f32, EnergyGrid, ParametricWks};
 pub use wks::{wave_kernel_signature, wks_filter_sq, EnergyRange, WksParams};
 

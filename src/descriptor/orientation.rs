@@ -12,9 +12,71 @@
 //! Conventions: functions are piecewise linear on faces; per-face values are averaged to
 //! vertices with face-area weights; the mesh is taken at unit area (the result is scale-free).
 
-use faer::MatRef;
+use faer::{Mat, MatRef};
 
-use crate::mesh::{cross, dot, sub, Mesh};
+use super::wks_filter_sq;
+use crate::{
+    mesh::{cross, dot, sub, Mesh},
+    spectral::Spectrum,
+};
+
+/// Log-energies of `count` band-pass functions spread over the low part of a spectrum (its
+/// first ~30 nonzero eigenvalues), where the functions are smooth enough for stable gradients:
+/// the inputs of [`orientation_descriptors`]. Choose them on one shape (a reference) and use
+/// them on both shapes of a pair, so that the two sets of functions correspond.
+///
+/// ```
+/// use shapeforest::{descriptor::orientation_band_energies, spectral::{compute_spectrum, SpectrumParams}, synth::icosphere};
+/// let s = compute_spectrum(&icosphere(2, 1.0), &SpectrumParams::new(40)).unwrap();
+/// let e = orientation_band_energies(&s, 5);
+/// assert_eq!(e.len(), 5);
+/// assert!(e.windows(2).all(|w| w[0] < w[1]));
+/// ```
+pub fn orientation_band_energies(spectrum: &Spectrum, count: usize) -> Vec<f64> {
+    let lam = &spectrum.eigenvalues;
+    let first = lam.iter().position(|&l| l > 1e-9 * lam.last().copied().unwrap_or(1.0)).unwrap_or(0);
+    let last = (first + 30).min(lam.len().saturating_sub(1));
+    let (lo, hi) = (lam[first].max(1e-12).ln(), lam[last].max(1e-12).ln());
+    (0..count).map(|i| lo + (hi - lo) * (i as f64 + 0.5) / count as f64).collect()
+}
+
+/// Band-pass (WKS-like) functions `Σ_k f_e(λ_k)² φ_k²` of a spectrum at the given log-energies
+/// (the filter width is their spacing), each normalised by its filter's total weight: an
+/// `n × energies.len()` matrix of smooth, intrinsic functions.
+///
+/// ```
+/// use shapeforest::{descriptor::{band_pass_functions, orientation_band_energies}, spectral::{compute_spectrum, SpectrumParams}, synth::icosphere};
+/// let s = compute_spectrum(&icosphere(2, 1.0), &SpectrumParams::new(40)).unwrap();
+/// let f = band_pass_functions(&s, &orientation_band_energies(&s, 5));
+/// assert_eq!((f.nrows(), f.ncols()), (s.n_vertices, 5));
+/// assert!((0..f.nrows()).all(|v| f[(v, 0)] >= 0.0));
+/// ```
+pub fn band_pass_functions(spectrum: &Spectrum, energies: &[f64]) -> Mat<f64> {
+    let sigma = if energies.len() > 1 {
+        ((energies[energies.len() - 1] - energies[0]) / (energies.len() - 1) as f64).max(1e-6)
+    } else {
+        1.0
+    };
+    let n = spectrum.n_vertices;
+    let mut f = Mat::zeros(n, energies.len());
+    for (c, &e) in energies.iter().enumerate() {
+        let w: Vec<f64> = spectrum
+            .eigenvalues
+            .iter()
+            .map(|&l| if l > 0.0 { wks_filter_sq(e, l, sigma) } else { 0.0 })
+            .collect();
+        let norm: f64 = w.iter().sum::<f64>().max(f64::MIN_POSITIVE);
+        for (k, &wk) in w.iter().enumerate() {
+            if wk > 1e-12 * norm {
+                let phi = spectrum.phi(k);
+                for v in 0..n {
+                    f[(v, c)] += wk / norm * phi[v] * phi[v];
+                }
+            }
+        }
+    }
+    f
+}
 
 /// Per-vertex orientation descriptors: for every pair `(i, j)`, `i < j`, of the columns of
 /// `functions` (`n × q`), the area-weighted vertex average of `⟨n, ∇f_i × ∇f_j⟩`. Returns a

@@ -42,6 +42,27 @@ pub enum EvalError {
         /// What went wrong.
         message: String,
     },
+    /// Regularising a map failed.
+    #[error(transparent)]
+    Regularizer(#[from] crate::regularizer::RegularizerError),
+    /// A geodesic computation failed.
+    #[error(transparent)]
+    Geodesic(#[from] crate::geodesic::GeodesicError),
+    /// A functional-map computation failed.
+    #[error(transparent)]
+    Fmap(#[from] crate::fmap::FmapError),
+    /// A spectrum could not be computed.
+    #[error(transparent)]
+    Spectral(#[from] crate::spectral::SpectralError),
+    /// Training or predicting with a forest failed.
+    #[error(transparent)]
+    Forest(#[from] crate::forest::ForestError),
+    /// A descriptor could not be computed.
+    #[error(transparent)]
+    Descriptor(#[from] crate::descriptor::DescriptorError),
+    /// Matching failed.
+    #[error(transparent)]
+    Matching(#[from] crate::matching::MatchingError),
 }
 
 /// Largest threshold of the cumulative curves (as in the paper's plots).

@@ -33,8 +33,7 @@ use crate::{
     forest::{RandomForestParams, TrainingSet, TrainingShape},
     geodesic::{HeatMethodSolver, HeatParams},
     regularizer::{regularize, regularize_onto, DenseMap, PairParams, PreparedShape, RegularizerParams},
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
-    Error,
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// A measured pairwise method.
@@ -221,12 +220,16 @@ pub enum PairsEvent<'a> {
 /// The maps of one pair in [`PairMethod::ALL`] order, and the pair step's seconds.
 type PairMaps = (Vec<usize>, Vec<usize>, Vec<usize>, f64);
 
-fn invalid(msg: String) -> Error {
-    EvalError::InvalidInput(msg).into()
+fn invalid(msg: String) -> EvalError {
+    EvalError::InvalidInput(msg)
 }
 
 /// Checks the shapes, the symmetry, the training set and the pairs.
-fn check(shapes: &[ProtocolShape], symmetry: Option<&[usize]>, params: &PairsParams) -> Result<usize, Error> {
+fn check(
+    shapes: &[ProtocolShape],
+    symmetry: Option<&[usize]>,
+    params: &PairsParams,
+) -> Result<usize, EvalError> {
     let n_labels = shapes.first().map_or(0, |s| s.truth.len());
     if n_labels == 0 {
         return Err(invalid("the pairwise protocol needs shapes with ground-truth tables".into()));
@@ -284,7 +287,7 @@ pub fn run_pairs(
     symmetry: Option<&[usize]>,
     params: &PairsParams,
     mut progress: Option<&mut dyn FnMut(PairsEvent<'_>)>,
-) -> Result<PairsReport, Error> {
+) -> Result<PairsReport, EvalError> {
     let n_labels = check(shapes, symmetry, params)?;
     let forest_params = params.forest.clone().check()?;
     let cache = match &params.cache_dir {
@@ -309,10 +312,7 @@ pub fn run_pairs(
         if spectra.contains_key(&s) {
             continue;
         }
-        let sp = match &cache {
-            Some(c) => c.get_or_compute(&shapes[s].mesh, &params.spectrum)?,
-            None => compute_spectrum(&shapes[s].mesh, &params.spectrum)?,
-        };
+        let sp = spectrum_cached(&shapes[s].mesh, &params.spectrum, cache.as_ref())?;
         spectra.insert(s, Arc::new(sp));
     }
     timings.spectra_s = t0.elapsed().as_secs_f64();

@@ -53,8 +53,7 @@ use crate::{
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, perturbations_name, Mesh, Perturbation},
     regularizer::{regularize, PreparedShape, RegularizerParams, ScanPart},
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
-    Error,
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// One shape of the evaluated class with its ground-truth table.
@@ -115,6 +114,10 @@ pub struct ProtocolParams {
     /// Normalise an open, partial scan by the reference's area instead of its own (default
     /// `true`; see [`crate::regularizer::normalising_area`]).
     pub partial_scale: bool,
+    /// Close the holes of a perturbed scan whose perimeter is at most this fraction of the
+    /// reference's `√area` before its spectrum is computed (see [`ScanPart::filled`]); `None`:
+    /// leave them open. Default `Some(0.35)` (a round hole of radius ~0.055·√area).
+    pub fill_holes: Option<f64>,
     /// Training-set augmentation: for every kind (a perturbation list), `augment_copies`
     /// seeded perturbed copies of each training shape join the training set (see
     /// [`crate::forest::augmented_shape`]). Default: none.
@@ -141,6 +144,7 @@ impl Default for ProtocolParams {
             skip_baseline: false,
             largest_component: true,
             partial_scale: true,
+            fill_holes: Some(0.35),
             augment: Vec::new(),
             augment_copies: 4,
         }
@@ -387,8 +391,8 @@ fn plan(n_shapes: usize, params: &ProtocolParams) -> Vec<(usize, Vec<usize>)> {
 /// ground-truth points and, with a symmetry map, from their mirror images.
 type PreparedReference = (usize, PreparedShape, Mat<f64>, Option<Mat<f64>>);
 
-fn invalid(msg: String) -> Error {
-    EvalError::InvalidInput(msg).into()
+fn invalid(msg: String) -> EvalError {
+    EvalError::InvalidInput(msg)
 }
 
 /// Runs the protocol (see the module documentation) on `shapes`.
@@ -402,7 +406,7 @@ pub fn run_protocol(
     symmetry: Option<&[usize]>,
     params: &ProtocolParams,
     mut progress: Option<&mut dyn FnMut(ProtocolEvent<'_>)>,
-) -> Result<ProtocolReport, Error> {
+) -> Result<ProtocolReport, EvalError> {
     if shapes.len() < 2 {
         return Err(invalid(format!("the protocol needs at least 2 shapes, got {}", shapes.len())));
     }
@@ -451,10 +455,7 @@ pub fn run_protocol(
     let mut spectrum_s = vec![0.0; shapes.len()];
     for (i, &s) in used.iter().enumerate() {
         let t0 = Instant::now();
-        let sp = match &cache {
-            Some(c) => c.get_or_compute(&shapes[s].mesh, &params.spectrum)?,
-            None => compute_spectrum(&shapes[s].mesh, &params.spectrum)?,
-        };
+        let sp = spectrum_cached(&shapes[s].mesh, &params.spectrum, cache.as_ref())?;
         spectra[s] = Some(Arc::new(sp));
         spectrum_s[s] = t0.elapsed().as_secs_f64();
         if let Some(cb) = progress.as_mut() {
@@ -573,10 +574,7 @@ pub fn run_protocol(
             })?;
             let fraction = p.area_fraction(&test_shape.mesh);
             let mesh = Arc::new(p.mesh);
-            let sp = match &cache {
-                Some(c) => c.get_or_compute(&mesh, &params.spectrum)?,
-                None => compute_spectrum(&mesh, &params.spectrum)?,
-            };
+            let sp = spectrum_cached(&mesh, &params.spectrum, cache.as_ref())?;
             (mesh, Arc::new(sp), Some(p.kept), fraction)
         };
         // The part that is matched: the largest component of a scan in pieces, normalised by
@@ -586,13 +584,22 @@ pub fn run_protocol(
         } else {
             ScanPart { mesh: scan_mesh.clone(), kept: None, components: 1 }
         };
-        let part_spectrum = match (&part.kept, &cache) {
-            (None, _) => scan_spectrum,
-            (Some(_), Some(c)) => Arc::new(c.get_or_compute(&part.mesh, &params.spectrum)?),
-            (Some(_), None) => Arc::new(compute_spectrum(&part.mesh, &params.spectrum)?),
+        let ref_area = shapes[reference].mesh.surface_area();
+        let filled = match params.fill_holes {
+            Some(f) if kept.is_some() => part.filled(f * ref_area.sqrt()),
+            _ => None,
         };
-        let (part_spectrum, scale_ratio) = if params.partial_scale && kept.is_some() {
-            let (sp, ratio) = part.normalise((*part_spectrum).clone(), shapes[reference].mesh.surface_area());
+        let spectrum_mesh = filled.clone().unwrap_or_else(|| part.mesh.clone());
+        let part_spectrum = match (&part.kept, &filled) {
+            (None, None) => scan_spectrum,
+            _ => Arc::new(spectrum_cached(&spectrum_mesh, &params.spectrum, cache.as_ref())?),
+        };
+        let (part_spectrum, scale_ratio) = if kept.is_some() {
+            let (sp, ratio) = if params.partial_scale {
+                part.spectrum_for_matching(&spectrum_mesh, (*part_spectrum).clone(), ref_area)
+            } else {
+                (part_spectrum.restricted(part.mesh.n_vertices()), 1.0)
+            };
             (Arc::new(sp), ratio)
         } else {
             (part_spectrum, 1.0)
@@ -659,7 +666,7 @@ pub fn run_protocol(
         let fields_used = fields_here.as_ref().unwrap_or(fields);
         let mirror_used = if all_columns { mirror_fields.as_ref() } else { mirror_here.as_ref() };
         let area = ref_prepared.mesh.surface_area();
-        let measure = |method: Method, map: &[usize]| -> Result<MethodErrors, Error> {
+        let measure = |method: Method, map: &[usize]| -> Result<MethodErrors, EvalError> {
             let (strict, _) = geodesic_errors(map, &evaluated, fields_used.as_ref(), None, area)?;
             let symmetric = match mirror_used {
                 Some(mf) => {

@@ -33,12 +33,14 @@ use serde::{Deserialize, Serialize};
 
 use super::EvalError;
 use crate::{
-    descriptor::{orientation_descriptors, wave_kernel_signature, wks_filter_sq, WksParams},
-    fmap::{nearest_rows, spectral_coefficients},
+    descriptor::{
+        band_pass_functions, orientation_band_energies, orientation_descriptors, wave_kernel_signature,
+        WksParams,
+    },
+    fmap::{nearest_rows, solve_rows_with_diagonal, spectral_coefficients},
     geodesic::{farthest_point_sampling_euclidean, HeatMethodSolver, HeatParams},
     mesh::Mesh,
     spectral::Spectrum,
-    Error,
 };
 
 /// One shape's ground truth with its mirror image (a remeshed shape with `.vts` and `.sym.vts`).
@@ -354,15 +356,14 @@ impl SymmetrySolver {
         mesh: &Mesh,
         spectrum: std::sync::Arc<Spectrum>,
         params: SymmetryParams,
-    ) -> Result<Self, Error> {
+    ) -> Result<Self, EvalError> {
         params.check()?;
         if spectrum.k() < params.k_initial {
             return Err(EvalError::InvalidInput(format!(
                 "the spectrum has {} eigenpairs, the symmetry fit needs {}",
                 spectrum.k(),
                 params.k_initial
-            ))
-            .into());
+            )));
         }
         let mut params = params;
         params.k_final = params.k_final.min(spectrum.k());
@@ -371,8 +372,7 @@ impl SymmetrySolver {
                 "spectrum of {} vertices for a mesh of {}",
                 spectrum.n_vertices,
                 mesh.n_vertices()
-            ))
-            .into());
+            )));
         }
         let heat = HeatMethodSolver::new(mesh, HeatParams::default())?;
         let sqrt_area = mesh.surface_area().sqrt();
@@ -381,7 +381,7 @@ impl SymmetrySolver {
         let wks = wave_kernel_signature(&spectrum, &wks_params, None)?;
         let wks = unit_columns(spectral_coefficients(&spectrum, k0, wks.as_ref())?);
         // Orientation descriptors from a few band-pass functions of the low spectrum.
-        let bands = band_functions(&spectrum, 5);
+        let bands = band_pass_functions(&spectrum, &orientation_band_energies(&spectrum, 5));
         let h = orientation_descriptors(mesh, bands.as_ref());
         let np = if bands.ncols() > 1 { h.len() / mesh.n_vertices() } else { 0 };
         let h = Mat::from_fn(mesh.n_vertices(), np, |v, j| h[v * np + j]);
@@ -398,7 +398,7 @@ impl SymmetrySolver {
     }
 
     /// Geodesic distance fields (normalised by √area) from `sources`.
-    fn fields(&self, sources: &[usize]) -> Result<Mat<f64>, Error> {
+    fn fields(&self, sources: &[usize]) -> Result<Mat<f64>, EvalError> {
         let mut f = self.heat.distances_from_many(sources)?;
         let s = 1.0 / self.sqrt_area.max(f64::MIN_POSITIVE);
         for j in 0..f.ncols() {
@@ -410,14 +410,14 @@ impl SymmetrySolver {
     }
 
     /// Fits the refined functional map of the symmetry to `features` (`k_final × k_final`).
-    pub fn fit(&self, features: &SymmetricFeatures) -> Result<Mat<f64>, Error> {
+    pub fn fit(&self, features: &SymmetricFeatures) -> Result<Mat<f64>, EvalError> {
         let c0 = self.fit_initial(features)?;
         self.zoomout(c0)
     }
 
     /// The initial functional map (`k_initial × k_initial`) fitted to `features` and the
     /// descriptors, before ZoomOut.
-    pub fn fit_initial(&self, features: &SymmetricFeatures) -> Result<Mat<f64>, Error> {
+    pub fn fit_initial(&self, features: &SymmetricFeatures) -> Result<Mat<f64>, EvalError> {
         features.check(self.spectrum.n_vertices)?;
         let points = features.points();
         let sources: Vec<usize> = points.iter().map(|&(p, _)| p).collect();
@@ -467,20 +467,19 @@ impl SymmetrySolver {
         for j in 0..self.orientation.ncols() {
             push(self.orientation.subcols(j, 1), self.orientation.subcols(j, 1), -1.0, ow, &mut w);
         }
-        Ok(solve_rows(a.as_ref(), b.as_ref(), &w, &self.spectrum.eigenvalues[..k0], &self.params)?)
+        solve_rows(a.as_ref(), b.as_ref(), &w, &self.spectrum.eigenvalues[..k0], &self.params)
     }
 
     /// ZoomOut on the samples, from a square functional map `c0` (at most `k_final²`) to
     /// `k_final × k_final`.
-    pub fn zoomout(&self, c0: Mat<f64>) -> Result<Mat<f64>, Error> {
+    pub fn zoomout(&self, c0: Mat<f64>) -> Result<Mat<f64>, EvalError> {
         let kf = self.params.k_final;
         if c0.nrows() != c0.ncols() || c0.nrows() > kf || c0.nrows() == 0 {
             return Err(EvalError::SizeMismatch(format!(
                 "ZoomOut starts from a square map of at most {kf}², got {}×{}",
                 c0.nrows(),
                 c0.ncols()
-            ))
-            .into());
+            )));
         }
         let ns = self.samples.len();
         // Gram matrix of the sampled basis; its leading blocks serve every k.
@@ -510,7 +509,7 @@ impl SymmetrySolver {
     }
 
     /// `argmin_C ‖Φ_s C − Φ_s[t]‖` over the samples, `k × k`.
-    fn least_squares(&self, gram: &Mat<f64>, t: &[usize], k: usize) -> Result<Mat<f64>, Error> {
+    fn least_squares(&self, gram: &Mat<f64>, t: &[usize], k: usize) -> Result<Mat<f64>, EvalError> {
         let phi_k = self.phi_samples.subcols(0, k);
         let target = Mat::from_fn(t.len(), k, |i, j| self.phi_samples[(t[i], j)]);
         let mut rhs = Mat::<f64>::zeros(k, k);
@@ -523,7 +522,7 @@ impl SymmetrySolver {
     }
 
     /// The mirror image of each of `vertices` under the functional map `c`.
-    pub fn map_vertices(&self, c: MatRef<'_, f64>, vertices: &[usize]) -> Result<Vec<usize>, Error> {
+    pub fn map_vertices(&self, c: MatRef<'_, f64>, vertices: &[usize]) -> Result<Vec<usize>, EvalError> {
         let k = c.nrows();
         if c.ncols() != k || k > self.spectrum.k() {
             return Err(EvalError::SizeMismatch(format!(
@@ -531,14 +530,11 @@ impl SymmetrySolver {
                 c.nrows(),
                 c.ncols(),
                 self.spectrum.k()
-            ))
-            .into());
+            )));
         }
         let n = self.spectrum.n_vertices;
         if let Some(&v) = vertices.iter().find(|&&v| v >= n) {
-            return Err(
-                EvalError::InvalidInput(format!("vertex {v} is outside the shape's {n} vertices")).into()
-            );
+            return Err(EvalError::InvalidInput(format!("vertex {v} is outside the shape's {n} vertices")));
         }
         let phi = self.spectrum.vectors().subcols(0, k);
         let rows = Mat::from_fn(vertices.len(), k, |i, j| phi[(vertices[i], j)]);
@@ -548,7 +544,7 @@ impl SymmetrySolver {
     }
 
     /// The dense symmetry fitted to all of `features`.
-    pub fn derive(&self, features: &SymmetricFeatures) -> Result<SymmetryMap, Error> {
+    pub fn derive(&self, features: &SymmetricFeatures) -> Result<SymmetryMap, EvalError> {
         let fmap = self.fit(features)?;
         let all: Vec<usize> = (0..self.spectrum.n_vertices).collect();
         let map = self.map_vertices(fmap.as_ref(), &all)?;
@@ -563,15 +559,14 @@ impl SymmetrySolver {
         features: &SymmetricFeatures,
         n_folds: usize,
         derived: &SymmetryMap,
-    ) -> Result<SymmetryValidation, Error> {
+    ) -> Result<SymmetryValidation, EvalError> {
         features.check(self.spectrum.n_vertices)?;
         let n = self.spectrum.n_vertices;
         if derived.map.len() != n || derived.map.iter().any(|&v| v >= n) {
             return Err(EvalError::SizeMismatch(format!(
                 "a symmetry map of {} entries for a shape of {n} vertices",
                 derived.map.len()
-            ))
-            .into());
+            )));
         }
         let folds = n_folds.clamp(2, features.pairs.len().max(2));
         let mut held_out = Vec::new();
@@ -583,8 +578,7 @@ impl SymmetrySolver {
             if kept.pairs.is_empty() {
                 return Err(EvalError::InvalidInput(
                     "too few feature pairs to hold some out (need at least 2)".into(),
-                )
-                .into());
+                ));
             }
             let c = self.fit(&kept)?;
             let pts = out.points();
@@ -631,34 +625,6 @@ fn unit_columns(mut m: Mat<f64>) -> Mat<f64> {
     m
 }
 
-/// `count` band-pass functions `Σ_k f_e(λ_k)² φ_k²` (normalised) at log-energies spread over
-/// the first ~30 nonzero eigenvalues: smooth, symmetric functions whose gradients feed the
-/// orientation descriptors.
-fn band_functions(spectrum: &Spectrum, count: usize) -> Mat<f64> {
-    let lam = &spectrum.eigenvalues;
-    let n = spectrum.n_vertices;
-    let first = lam.iter().position(|&l| l > 1e-9 * lam.last().copied().unwrap_or(1.0)).unwrap_or(0);
-    let last = (first + 30).min(lam.len().saturating_sub(1));
-    let (lo, hi) = (lam[first].max(1e-12).ln(), lam[last].max(1e-12).ln());
-    let sigma = ((hi - lo) / count.max(1) as f64).max(1e-6);
-    let mut out = Mat::zeros(n, count);
-    for c in 0..count {
-        let e = lo + (hi - lo) * (c as f64 + 0.5) / count as f64;
-        let w: Vec<f64> =
-            lam.iter().map(|&l| if l > 0.0 { wks_filter_sq(e, l, sigma) } else { 0.0 }).collect();
-        let norm = w.iter().sum::<f64>().max(f64::MIN_POSITIVE);
-        for (k, &wk) in w.iter().enumerate() {
-            if wk > 1e-12 * norm {
-                let phi = spectrum.phi(k);
-                for v in 0..n {
-                    out[(v, c)] += wk / norm * phi[v] * phi[v];
-                }
-            }
-        }
-    }
-    out
-}
-
 /// Solves `min_C Σ_j w_j ‖C b_j − a_j‖² + μ ‖C Λ − Λ C‖² + ε ‖C‖²` row by row.
 fn solve_rows(
     a: MatRef<'_, f64>,
@@ -674,24 +640,9 @@ fn solve_rows(
     let mut rhs = Mat::<f64>::zeros(k, k);
     matmul(rhs.as_mut(), Accum::Replace, a, bw.transpose(), 1.0, Par::Seq);
     let scale = lambda.iter().fold(0f64, |m, &l| m.max(l.abs())).max(f64::MIN_POSITIVE);
-    let mut c = Mat::zeros(k, k);
-    for i in 0..k {
-        let sys = Mat::from_fn(k, k, |r, s| {
-            let mut x = g[(r, s)];
-            if r == s {
-                let d = (lambda[r] - lambda[i]) / scale;
-                x += params.commutativity * d * d + params.ridge;
-            }
-            x
-        });
-        let llt = sys.llt(Side::Lower).map_err(|_| {
-            EvalError::InvalidInput("the symmetry least-squares system is not positive definite".into())
-        })?;
-        let r = Mat::from_fn(k, 1, |j, _| rhs[(i, j)]);
-        let sol = faer::linalg::solvers::Solve::solve(&llt, r.as_ref());
-        for j in 0..k {
-            c[(i, j)] = sol[(j, 0)];
-        }
-    }
-    Ok(c)
+    solve_rows_with_diagonal(g.as_ref(), rhs.as_ref(), |i, j| {
+        let d = (lambda[j] - lambda[i]) / scale;
+        params.commutativity * d * d + params.ridge
+    })
+    .map_err(|_| EvalError::InvalidInput("the symmetry least-squares system is not positive definite".into()))
 }

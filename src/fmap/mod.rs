@@ -247,17 +247,44 @@ pub fn solve_regularised_fmap(
     matmul(rhs_add.as_mut(), Accum::Replace, a, bw.transpose(), 1.0, Par::Seq);
     let scale =
         lambda_test[..kt].iter().chain(&lambda_ref[..kr]).fold(0f64, |m, &l| m.max(l.abs())).max(1e-300);
-    let mut c = Mat::zeros(kt, kr);
-    for i in 0..kt {
-        let mut sys = g.clone();
-        for j in 0..kr {
-            let d = (lambda_ref[j] - lambda_test[i]) / scale;
-            sys[(j, j)] += 1.0 + params.commutativity * d * d;
+    let rhs = Mat::from_fn(kt, kr, |i, j| c_pred[(i, j)] + rhs_add[(i, j)]);
+    solve_rows_with_diagonal(g.as_ref(), rhs.as_ref(), |i, j| {
+        let d = (lambda_ref[j] - lambda_test[i]) / scale;
+        1.0 + params.commutativity * d * d
+    })
+}
+
+/// Solves `x_i (G + diag(d_i)) = r_i` for every row `i` of `rhs` (`m × k`), `G` symmetric
+/// positive semi-definite `k × k`, `d_i[j] = diagonal(i, j)` (a ridge, a commutativity
+/// penalty): the row-separable least squares behind every regularised functional map. Fails
+/// when a system is not positive definite.
+///
+/// ```
+/// use faer::Mat;
+/// let g = Mat::<f64>::zeros(2, 2);
+/// let rhs = Mat::from_fn(1, 2, |_, j| 2.0 * (j + 1) as f64);
+/// let x = shapeforest::fmap::solve_rows_with_diagonal(g.as_ref(), rhs.as_ref(), |_, _| 2.0).unwrap();
+/// assert!((x[(0, 0)] - 1.0).abs() < 1e-12 && (x[(0, 1)] - 2.0).abs() < 1e-12);
+/// ```
+pub fn solve_rows_with_diagonal(
+    g: MatRef<'_, f64>,
+    rhs: MatRef<'_, f64>,
+    diagonal: impl Fn(usize, usize) -> f64,
+) -> Result<Mat<f64>, FmapError> {
+    let (m, k) = (rhs.nrows(), rhs.ncols());
+    if g.nrows() != k || g.ncols() != k {
+        return Err(FmapError::SizeMismatch(format!("a {}×{} system for rows of {k}", g.nrows(), g.ncols())));
+    }
+    let mut c = Mat::zeros(m, k);
+    for i in 0..m {
+        let mut sys = g.to_owned();
+        for j in 0..k {
+            sys[(j, j)] += diagonal(i, j);
         }
         let llt = sys.llt(Side::Lower).map_err(|_| FmapError::NotPositiveDefinite)?;
-        let rhs = Mat::from_fn(kr, 1, |j, _| c_pred[(i, j)] + rhs_add[(i, j)]);
-        let sol = faer::linalg::solvers::Solve::solve(&llt, rhs.as_ref());
-        for j in 0..kr {
+        let r = Mat::from_fn(k, 1, |j, _| rhs[(i, j)]);
+        let sol = faer::linalg::solvers::Solve::solve(&llt, r.as_ref());
+        for j in 0..k {
             c[(i, j)] = sol[(j, 0)];
         }
     }

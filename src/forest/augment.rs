@@ -9,11 +9,10 @@
 
 use std::sync::Arc;
 
-use super::TrainingShape;
+use super::{ForestError, TrainingShape};
 use crate::{
     mesh::{largest_component, perturb, perturbations_name, Mesh, Perturbation},
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
-    Error,
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// A perturbed copy of a labelled shape as a training shape: `perturbations` applied with
@@ -27,16 +26,13 @@ pub fn augmented_shape(
     seed: u64,
     spectrum: &SpectrumParams,
     cache: Option<&SpectrumCache>,
-) -> Result<TrainingShape, Error> {
+) -> Result<TrainingShape, ForestError> {
     let p = perturb(mesh, perturbations, seed)?;
     let (part, kept) = match largest_component(&p.mesh) {
         Some((m, k)) => (m, k.iter().map(|&v| p.kept[v]).collect::<Vec<_>>()),
         None => (p.mesh, p.kept),
     };
-    let sp: Spectrum = match cache {
-        Some(c) => c.get_or_compute(&part, spectrum)?,
-        None => compute_spectrum(&part, spectrum)?,
-    };
+    let sp: Spectrum = spectrum_cached(&part, spectrum, cache)?;
     let sp = sp.renormalised(mesh.surface_area());
     Ok(TrainingShape {
         name: format!("{name}~{}#{seed}", perturbations_name(perturbations)),

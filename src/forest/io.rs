@@ -23,7 +23,9 @@ pub const MODEL_MAGIC: [u8; 8] = *b"SFOREST\0";
 pub const MODEL_FORMAT_VERSION: u32 = 2;
 /// The oldest format version this build still reads (version 1 has no reference table).
 pub const MODEL_FORMAT_OLDEST: u32 = 1;
-const PREFIX_LEN: usize = 8 + 4 + 8 + 8;
+/// The format's own head in the frame: the version (`u32`).
+const HEAD_LEN: usize = 4;
+const PREFIX_LEN: usize = crate::fsutil::frame_prefix_len(HEAD_LEN);
 
 /// The descriptive part of a model file, readable without the trees.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -54,12 +56,7 @@ struct Payload {
 /// assert_ne!(fnv1a64(b"a"), fnv1a64(b"b"));
 /// ```
 pub fn fnv1a64(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01B3);
-    }
-    h
+    crate::fsutil::fnv1a64(bytes)
 }
 
 impl RandomForest {
@@ -78,13 +75,7 @@ impl RandomForest {
     pub fn to_bytes(&self) -> Result<Vec<u8>, ForestError> {
         let payload = rmp_serde::to_vec(&Payload { header: self.header(), forest: self.clone() })
             .map_err(|e| ForestError::CorruptModel(format!("cannot encode: {e}")))?;
-        let mut out = Vec::with_capacity(PREFIX_LEN + payload.len());
-        out.extend_from_slice(&MODEL_MAGIC);
-        out.extend_from_slice(&MODEL_FORMAT_VERSION.to_le_bytes());
-        out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-        out.extend_from_slice(&fnv1a64(&payload).to_le_bytes());
-        out.extend_from_slice(&payload);
-        Ok(out)
+        Ok(crate::fsutil::frame(&MODEL_MAGIC, &MODEL_FORMAT_VERSION.to_le_bytes(), &payload))
     }
 
     /// Decodes a model from bytes, checking magic, version, length, checksum and the forest's
@@ -93,16 +84,10 @@ impl RandomForest {
         if bytes.len() < 8 || bytes[..8] != MODEL_MAGIC {
             return Err(ForestError::NotAModel);
         }
-        if bytes.len() < PREFIX_LEN {
+        let Some(frame) = crate::fsutil::unframe(bytes, HEAD_LEN) else {
             return Err(ForestError::Truncated { expected: PREFIX_LEN, found: bytes.len() });
-        }
-        let u32_at = |i: usize| u32::from_le_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]);
-        let u64_at = |i: usize| {
-            let mut b = [0u8; 8];
-            b.copy_from_slice(&bytes[i..i + 8]);
-            u64::from_le_bytes(b)
         };
-        let version = u32_at(8);
+        let version = u32::from_le_bytes([frame.head[0], frame.head[1], frame.head[2], frame.head[3]]);
         if !(MODEL_FORMAT_OLDEST..=MODEL_FORMAT_VERSION).contains(&version) {
             return Err(ForestError::UnsupportedVersion {
                 found: version,
@@ -110,9 +95,7 @@ impl RandomForest {
                 supported: MODEL_FORMAT_VERSION,
             });
         }
-        let len = u64_at(12);
-        let checksum = u64_at(20);
-        let expected = (PREFIX_LEN as u64).saturating_add(len);
+        let expected = (PREFIX_LEN as u64).saturating_add(frame.declared_len);
         if (bytes.len() as u64) < expected {
             return Err(ForestError::Truncated {
                 expected: expected.min(usize::MAX as u64) as usize,
@@ -125,10 +108,9 @@ impl RandomForest {
                 bytes.len() as u64 - expected
             )));
         }
-        let payload = &bytes[PREFIX_LEN..];
-        let found = fnv1a64(payload);
-        if found != checksum {
-            return Err(ForestError::ChecksumMismatch { expected: checksum, found });
+        let payload = frame.payload;
+        if !frame.checksum_ok() {
+            return Err(ForestError::ChecksumMismatch { expected: frame.checksum, found: fnv1a64(payload) });
         }
         let p: Payload =
             rmp_serde::from_slice(payload).map_err(|e| ForestError::CorruptModel(e.to_string()))?;

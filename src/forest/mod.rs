@@ -125,6 +125,12 @@ pub enum ForestError {
     /// Descriptor computation failed.
     #[error(transparent)]
     Descriptor(#[from] crate::descriptor::DescriptorError),
+    /// A perturbed copy of a training shape could not be made (augmentation).
+    #[error(transparent)]
+    Mesh(#[from] crate::mesh::MeshError),
+    /// A training shape's spectrum could not be computed (augmentation).
+    #[error(transparent)]
+    Spectral(#[from] crate::spectral::SpectralError),
     /// Reading or writing a file failed. (The cause is in the message and deliberately not a
     /// `source`, so that an error chain prints it once.)
     #[error("{}: {error}", path.display())]

@@ -56,36 +56,7 @@ pub(crate) fn vertex_on_boundary(mesh: &Mesh, edges: &[(usize, usize, u32)]) -> 
 /// Connected component label of every vertex (through faces). Unreferenced vertices get a
 /// component of their own. Labels are `0..n_components`, numbered by lowest vertex.
 pub(crate) fn vertex_components(mesh: &Mesh) -> Vec<usize> {
-    let n = mesh.n_vertices();
-    let mut parent: Vec<usize> = (0..n).collect();
-    fn find(parent: &mut [usize], mut x: usize) -> usize {
-        while parent[x] != x {
-            parent[x] = parent[parent[x]];
-            x = parent[x];
-        }
-        x
-    }
-    for f in &mesh.faces {
-        for c in 1..3 {
-            let (ra, rb) = (find(&mut parent, f[0]), find(&mut parent, f[c]));
-            if ra != rb {
-                let (lo, hi) = (ra.min(rb), ra.max(rb));
-                parent[hi] = lo;
-            }
-        }
-    }
-    let mut label = vec![usize::MAX; n];
-    let mut next = 0;
-    let mut out = vec![0; n];
-    for (v, o) in out.iter_mut().enumerate() {
-        let r = find(&mut parent, v);
-        if label[r] == usize::MAX {
-            label[r] = next;
-            next += 1;
-        }
-        *o = label[r];
-    }
-    out
+    crate::mesh::face_connectivity(mesh).labels().0
 }
 
 /// The edge graph in compressed (CSR) form: neighbours of `v` are

@@ -48,6 +48,7 @@ mod ply;
 mod report;
 mod summary;
 mod text;
+mod topology;
 mod tosca;
 mod xyz;
 
@@ -62,12 +63,15 @@ pub use io::{
 };
 pub use obj::{parse_obj, write_obj};
 pub use off::{parse_off, write_off};
-pub use parts::{extend_map_by_nearest, largest_component, submesh, vertex_components};
+pub use parts::{
+    boundary_loops, extend_map_by_nearest, fill_holes, largest_component, submesh, vertex_components,
+};
 pub use perturb::{perturb, perturbations_name, Perturbation, Perturbed};
 pub use ply::{parse_ply, write_ply, PlyEncoding};
 pub use report::{MeshFormat, MeshReport, MeshWarning};
 pub use summary::{is_zero_area, ComponentSize, MeshSummary};
 pub use text::MAX_DECOMPRESSED_BYTES;
+pub use topology::{face_connectivity, UnionFind};
 pub use tosca::{parse_tosca, parse_tri, parse_vert, write_tosca};
 pub use xyz::{parse_xyz_cloud, write_xyz};
 
@@ -183,7 +187,7 @@ impl Mesh {
     /// A 64-bit FNV-1a hash of the exact vertex coordinates and faces: two meshes with the same
     /// hash are (with overwhelming probability) bit-identical. Used to key caches.
     pub fn content_hash(&self) -> u64 {
-        let mut h = Fnv64::new();
+        let mut h = crate::fsutil::Fnv64::new();
         h.write_u64(self.vertices.len() as u64);
         h.write_u64(self.faces.len() as u64);
         for p in &self.vertices {
@@ -268,31 +272,6 @@ pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 #[inline]
 pub(crate) fn norm(a: [f64; 3]) -> f64 {
     dot(a, a).sqrt()
-}
-
-/// FNV-1a, 64 bit: small, stable across platforms and Rust versions (unlike `DefaultHasher`).
-pub(crate) struct Fnv64(u64);
-
-impl Fnv64 {
-    pub(crate) fn new() -> Self {
-        Self(0xcbf2_9ce4_8422_2325)
-    }
-    pub(crate) fn write_u64(&mut self, x: u64) {
-        for b in x.to_le_bytes() {
-            self.0 ^= b as u64;
-            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    }
-    #[allow(dead_code)]
-    pub(crate) fn write_bytes(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 ^= b as u64;
-            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    }
-    pub(crate) fn finish(&self) -> u64 {
-        self.0
-    }
 }
 
 /// A smooth colour per vertex from its coordinates normalised to the bounding box (red = x,

@@ -16,8 +16,7 @@ use super::Mesh;
 /// labels follow the smallest vertex of each component, a vertex used by no face is a component
 /// of its own.
 pub fn vertex_components(mesh: &Mesh) -> (Vec<usize>, Vec<usize>) {
-    let labels = crate::geodesic::topology::vertex_components(mesh);
-    let n_comp = labels.iter().copied().max().map_or(0, |m| m + 1);
+    let (labels, n_comp) = super::face_connectivity(mesh).labels();
     let mut sizes = vec![0usize; n_comp];
     for &l in &labels {
         sizes[l] += 1;
@@ -100,6 +99,96 @@ pub fn extend_map_by_nearest(full: &Mesh, kept: &[usize], part_map: &[usize]) ->
         map[v] = r;
     }
     map
+}
+
+/// The boundary loops of a mesh as closed vertex chains, each following its boundary edges in
+/// the direction the faces give them (a face `[a, b, c]` whose edge `a → b` has no face on the
+/// other side contributes `a → b`). A vertex where several loops touch is visited once per loop.
+pub fn boundary_loops(mesh: &Mesh) -> Vec<Vec<usize>> {
+    use std::collections::{HashMap, HashSet};
+    let mut directed: HashSet<(usize, usize)> = HashSet::with_capacity(3 * mesh.n_faces());
+    for f in &mesh.faces {
+        for e in 0..3 {
+            directed.insert((f[e], f[(e + 1) % 3]));
+        }
+    }
+    let mut next: HashMap<usize, Vec<usize>> = HashMap::new();
+    for &(a, b) in &directed {
+        if !directed.contains(&(b, a)) {
+            next.entry(a).or_default().push(b);
+        }
+    }
+    let mut starts: Vec<usize> = next.keys().copied().collect();
+    starts.sort_unstable();
+    let mut loops = Vec::new();
+    for start in starts {
+        while let Some(b) = next.get_mut(&start).and_then(|v| v.pop()) {
+            let mut chain = vec![start];
+            let mut at = b;
+            while at != start && chain.len() <= mesh.n_vertices() {
+                chain.push(at);
+                match next.get_mut(&at).and_then(|v| v.pop()) {
+                    Some(n) => at = n,
+                    None => break,
+                }
+            }
+            if at == start && chain.len() >= 3 {
+                loops.push(chain);
+            }
+        }
+    }
+    loops
+}
+
+/// The mesh with its small holes closed: every boundary loop whose perimeter is at most
+/// `max_perimeter` gets a vertex at its centroid and a fan of triangles, oriented like the
+/// surrounding faces. The input's vertices keep their indices; the added ones follow them.
+/// Returns the filled mesh and the number of loops closed.
+///
+/// ```
+/// use shapeforest::mesh::{fill_holes, Mesh};
+/// // A square of two triangles: one boundary loop of perimeter 4.
+/// let m = Mesh::new(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+///                   vec![[0, 1, 2], [0, 2, 3]]).unwrap();
+/// let (closed, n) = fill_holes(&m, 5.0);
+/// assert_eq!((n, closed.n_vertices(), closed.n_faces()), (1, 5, 6));
+/// assert!(closed.summary().is_closed());
+/// assert_eq!(fill_holes(&m, 3.0).1, 0); // perimeter above the limit: left open
+/// ```
+pub fn fill_holes(mesh: &Mesh, max_perimeter: f64) -> (Mesh, usize) {
+    let mut vertices = mesh.vertices.clone();
+    let mut faces = mesh.faces.clone();
+    let mut closed = 0;
+    for chain in boundary_loops(mesh) {
+        let len = chain.len();
+        let perimeter: f64 = (0..len)
+            .map(|i| {
+                let (a, b) = (mesh.vertices[chain[i]], mesh.vertices[chain[(i + 1) % len]]);
+                ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+            })
+            .sum();
+        if perimeter > max_perimeter {
+            continue;
+        }
+        let mut c = [0.0; 3];
+        for &v in &chain {
+            for (cd, x) in c.iter_mut().zip(mesh.vertices[v]) {
+                *cd += x / len as f64;
+            }
+        }
+        let centre = vertices.len();
+        vertices.push(c);
+        for i in 0..len {
+            // Boundary edge a → b belongs to a face on its left; the fill triangle runs b → a.
+            let (a, b) = (chain[i], chain[(i + 1) % len]);
+            faces.push([b, a, centre]);
+        }
+        closed += 1;
+    }
+    match Mesh::new(vertices, faces) {
+        Ok(m) => (m, closed),
+        Err(_) => (mesh.clone(), 0),
+    }
 }
 
 #[cfg(test)]

@@ -9,7 +9,7 @@
 
 use std::fmt;
 
-use super::{norm, sub, Mesh};
+use super::{norm, sub, Mesh, UnionFind};
 
 /// Size of one connected component.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -295,38 +295,6 @@ fn count_loops(n_vertices: usize, boundary: &[(usize, usize)]) -> usize {
         }
     }
     loops
-}
-
-/// Disjoint sets with path halving and union by size.
-struct UnionFind {
-    parent: Vec<usize>,
-    size: Vec<usize>,
-}
-
-impl UnionFind {
-    fn new(n: usize) -> Self {
-        Self { parent: (0..n).collect(), size: vec![1; n] }
-    }
-
-    fn find(&mut self, mut x: usize) -> usize {
-        while self.parent[x] != x {
-            self.parent[x] = self.parent[self.parent[x]];
-            x = self.parent[x];
-        }
-        x
-    }
-
-    fn union(&mut self, a: usize, b: usize) {
-        let (mut ra, mut rb) = (self.find(a), self.find(b));
-        if ra == rb {
-            return;
-        }
-        if self.size[ra] < self.size[rb] {
-            std::mem::swap(&mut ra, &mut rb);
-        }
-        self.parent[rb] = ra;
-        self.size[ra] += self.size[rb];
-    }
 }
 
 impl fmt::Display for MeshSummary {

@@ -1,5 +1,5 @@
 //! Actors: the [`Source`], [`Stage`] and [`Sink`] traits a pipeline is made of, the loops that
-//! run them over bounded flume channels, per-stage metrics, and the shutdown signal.
+//! run them over the edges a [`super::Transport`] makes, and per-stage metrics.
 //!
 //! Every actor is a tokio task that owns its state. The work of one job (`process`, `consume`)
 //! runs on tokio's blocking pool (`spawn_blocking`), where it may use rayon; executor threads
@@ -9,65 +9,18 @@
 use std::{
     panic::AssertUnwindSafe,
     sync::{
-        atomic::{AtomicBool, AtomicU64, Ordering},
+        atomic::{AtomicU64, Ordering},
         Arc, Mutex,
     },
     time::{Duration, Instant},
 };
 
-use tokio::sync::Notify;
-
-use super::message::{Envelope, Failure, FailureKind, Job, JobId};
-
-/// A shared shutdown flag: once triggered, sources stop taking new inputs and stages pass the
-/// jobs that reach them on as [`FailureKind::Interrupted`] (their inputs stay claimed and are
-/// picked up again at the next start).
-#[derive(Clone, Default)]
-pub struct Shutdown {
-    inner: Arc<(AtomicBool, Notify)>,
-}
-
-impl Shutdown {
-    /// A flag that is not triggered.
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Triggers the shutdown (idempotent).
-    pub fn trigger(&self) {
-        self.inner.0.store(true, Ordering::SeqCst);
-        self.inner.1.notify_waiters();
-    }
-
-    /// Whether the shutdown was triggered.
-    pub fn is_triggered(&self) -> bool {
-        self.inner.0.load(Ordering::SeqCst)
-    }
-
-    /// Sleeps `d` or until the shutdown is triggered; returns whether it was triggered.
-    pub fn sleep(&self, d: Duration) -> bool {
-        let step = Duration::from_millis(25);
-        let end = Instant::now() + d;
-        while Instant::now() < end {
-            if self.is_triggered() {
-                return true;
-            }
-            std::thread::sleep(step.min(end.saturating_duration_since(Instant::now())));
-        }
-        self.is_triggered()
-    }
-
-    /// Waits (asynchronously) for the trigger.
-    pub async fn triggered(&self) {
-        loop {
-            let notified = self.inner.1.notified();
-            if self.is_triggered() {
-                return;
-            }
-            notified.await;
-        }
-    }
-}
+use super::{
+    error::Error,
+    message::{Envelope, Failure, FailureKind, Job, JobId},
+    shutdown::Shutdown,
+    transport::{Output, Payload, Receiver},
+};
 
 /// Counters of one actor, updated as it runs.
 #[derive(Debug, Default)]
@@ -154,6 +107,7 @@ pub struct PipelineContext {
     next_job: Arc<AtomicU64>,
     metrics: Arc<Mutex<Vec<Arc<StageMetrics>>>>,
     problems: Arc<Mutex<Vec<String>>>,
+    summary: Arc<Mutex<Vec<String>>>,
 }
 
 impl Default for PipelineContext {
@@ -176,6 +130,7 @@ impl PipelineContext {
             next_job: Arc::new(AtomicU64::new(1)),
             metrics: Arc::new(Mutex::new(Vec::new())),
             problems: Arc::default(),
+            summary: Arc::default(),
         }
     }
 
@@ -201,6 +156,19 @@ impl PipelineContext {
         }
     }
 
+    /// Adds a result for the caller to show (an evaluation sink's table): the library does not
+    /// print; [`super::PipelineReport::summary`] carries these.
+    pub fn add_summary(&self, text: impl Into<String>) {
+        if let Ok(mut s) = self.summary.lock() {
+            s.push(text.into());
+        }
+    }
+
+    /// The summaries added so far.
+    pub fn summary(&self) -> Vec<String> {
+        self.summary.lock().map(|s| s.clone()).unwrap_or_default()
+    }
+
     /// The problems recorded so far.
     pub fn problems(&self) -> Vec<String> {
         self.problems.lock().map(|p| p.clone()).unwrap_or_default()
@@ -218,12 +186,18 @@ impl PipelineContext {
 /// Where a source puts what it finds. Sending blocks while the channel is full (back-pressure)
 /// and gives up when the pipeline shuts down.
 pub struct Emitter<T> {
-    tx: flume::Sender<Envelope<T>>,
+    out: Mutex<Output<T>>,
     ctx: PipelineContext,
     metrics: Arc<StageMetrics>,
 }
 
-impl<T> Emitter<T> {
+impl<T: Payload> Emitter<T> {
+    /// An emitter writing to `out` (for running a source outside a [`super::Pipeline`], e.g.
+    /// in a test with in-memory ports).
+    pub fn new(out: Output<T>, ctx: PipelineContext, metrics: Arc<StageMetrics>) -> Self {
+        Self { out: Mutex::new(out), ctx, metrics }
+    }
+
     /// A new job number.
     pub fn next_job_id(&self) -> JobId {
         self.ctx.next_job_id()
@@ -238,22 +212,13 @@ impl<T> Emitter<T> {
     /// job was not sent because the pipeline is shutting down or nothing consumes the output.
     pub fn emit(&self, envelope: Envelope<T>) -> bool {
         let ok = envelope.body.is_ok();
-        let mut env = envelope;
-        loop {
-            match self.tx.send_timeout(env, Duration::from_millis(100)) {
-                Ok(()) => {
-                    self.metrics.record(Duration::ZERO, ok);
-                    return true;
-                }
-                Err(flume::SendTimeoutError::Timeout(back)) => {
-                    if self.ctx.shutdown.is_triggered() {
-                        return false;
-                    }
-                    env = back;
-                }
-                Err(flume::SendTimeoutError::Disconnected(_)) => return false,
-            }
+        let Ok(mut out) = self.out.lock() else { return false };
+        let shutdown = &self.ctx.shutdown;
+        let sent = out.send_blocking(envelope, Duration::from_millis(100), || shutdown.is_triggered());
+        if sent {
+            self.metrics.record(Duration::ZERO, ok);
         }
+        sent
     }
 }
 
@@ -261,17 +226,17 @@ impl<T> Emitter<T> {
 /// until it has nothing more to give or the pipeline shuts down.
 pub trait Source: Send + 'static {
     /// What it emits.
-    type Out: Send + 'static;
+    type Out: Payload;
     /// Runs the source. An error ends it (and is logged); jobs already emitted go on.
-    fn run(&mut self, out: &Emitter<Self::Out>) -> Result<(), String>;
+    fn run(&mut self, out: &Emitter<Self::Out>) -> Result<(), Error>;
 }
 
 /// A processing stage: one input, one output per job.
 pub trait Stage: Send + 'static {
     /// Input payload.
-    type In: Send + 'static;
+    type In: Payload;
     /// Output payload.
-    type Out: Send + 'static;
+    type Out: Payload;
     /// Processes one job's payload; `job` may be annotated. An error is the job's failure.
     fn process(&mut self, job: &mut Job, input: Self::In) -> Result<Self::Out, Failure>;
 }
@@ -279,17 +244,17 @@ pub trait Stage: Send + 'static {
 /// The end of a chain: consumes every job, successful or failed.
 pub trait Sink: Send + 'static {
     /// Input payload.
-    type In: Send + 'static;
+    type In: Payload;
     /// Called once before the first job (on a blocking thread).
-    fn start(&mut self) -> Result<(), String> {
+    fn start(&mut self) -> Result<(), Error> {
         Ok(())
     }
     /// Consumes one job. An error is logged and counted; the sink goes on.
-    fn consume(&mut self, job: Job, body: Result<Self::In, Failure>) -> Result<(), String>;
+    fn consume(&mut self, job: Job, body: Result<Self::In, Failure>) -> Result<(), Error>;
     /// Called when nothing is waiting: after a job that left the input channel empty, and every
     /// [`Sink::tick`] while no job arrives (a trainer batches what has arrived and updates its
     /// model here).
-    fn idle(&mut self) -> Result<(), String> {
+    fn idle(&mut self) -> Result<(), Error> {
         Ok(())
     }
     /// How often [`Sink::idle`] is called while no job arrives (`None`: never).
@@ -297,7 +262,7 @@ pub trait Sink: Send + 'static {
         None
     }
     /// Called once when every input has arrived (the upstream closed).
-    fn finish(&mut self) -> Result<(), String> {
+    fn finish(&mut self) -> Result<(), Error> {
         Ok(())
     }
 }
@@ -333,18 +298,22 @@ where
 }
 
 /// Runs a source to completion on the blocking pool.
-pub(crate) async fn run_source<S: Source>(
+pub async fn run_source<S: Source>(
     source: S,
     name: String,
-    tx: flume::Sender<Envelope<S::Out>>,
+    out: Output<S::Out>,
     ctx: PipelineContext,
     metrics: Arc<StageMetrics>,
 ) {
     let problems = ctx.clone();
-    let emitter = Emitter { tx, ctx, metrics };
+    let emitter = Emitter::new(out, ctx, metrics);
     match on_blocking_pool(source, move |s| s.run(&emitter)).await {
         Some((_, Ok(Ok(())))) => tracing::debug!(source = %name, "source finished"),
-        Some((_, Ok(Err(e)) | Err(e))) => {
+        Some((_, Ok(Err(e)))) => {
+            tracing::error!(source = %name, "source stopped: {e}");
+            problems.record_problem(format!("source `{name}` failed: {e}"));
+        }
+        Some((_, Err(e))) => {
             tracing::error!(source = %name, "source stopped: {e}");
             problems.record_problem(format!("source `{name}` failed: {e}"));
         }
@@ -353,17 +322,17 @@ pub(crate) async fn run_source<S: Source>(
 }
 
 /// Runs a stage until its input closes.
-pub(crate) async fn run_stage<S: Stage>(
+pub async fn run_stage<S: Stage>(
     stage: S,
     name: String,
-    rx: flume::Receiver<Envelope<S::In>>,
-    tx: flume::Sender<Envelope<S::Out>>,
+    rx: Box<dyn Receiver<S::In>>,
+    mut out: Output<S::Out>,
     ctx: PipelineContext,
     metrics: Arc<StageMetrics>,
 ) {
     let mut stage = Some(stage);
-    while let Ok(Envelope { job, body }) = rx.recv_async().await {
-        let out = match body {
+    while let Some(Envelope { job, body }) = rx.recv().await {
+        let next = match body {
             Err(f) => {
                 metrics.passed_on.fetch_add(1, Ordering::Relaxed);
                 Envelope { job, body: Err(f) }
@@ -405,7 +374,7 @@ pub(crate) async fn run_stage<S: Stage>(
                 Envelope { job, body: r }
             }
         };
-        if tx.send_async(out).await.is_err() {
+        if !out.send(next).await {
             tracing::error!(stage = %name, "downstream closed; stopping");
             break;
         }
@@ -413,15 +382,16 @@ pub(crate) async fn run_stage<S: Stage>(
 }
 
 /// Runs a sink until its input closes.
-pub(crate) async fn run_sink<S: Sink>(
+pub async fn run_sink<S: Sink>(
     sink: S,
     name: String,
-    rx: flume::Receiver<Envelope<S::In>>,
+    rx: Box<dyn Receiver<S::In>>,
     metrics: Arc<StageMetrics>,
     ctx: PipelineContext,
 ) {
-    let log = |what: &str, r: Result<Result<(), String>, String>| {
-        if let Err(e) = r.and_then(|r| r) {
+    let rx: Arc<dyn Receiver<S::In>> = Arc::from(rx);
+    let log = |what: &str, r: Result<Result<(), Error>, String>| {
+        if let Err(e) = r.map_err(Error::Panic).and_then(|r| r) {
             tracing::error!(sink = %name, "{what}{e}");
             if !what.is_empty() {
                 ctx.record_problem(format!("sink `{name}`: {what}{e}"));
@@ -434,8 +404,8 @@ pub(crate) async fn run_sink<S: Sink>(
     let mut sink = Some(s);
     loop {
         let received = match tick {
-            None => rx.recv_async().await,
-            Some(t) => match tokio::time::timeout(t, rx.recv_async()).await {
+            None => rx.recv().await,
+            Some(t) => match tokio::time::timeout(t, rx.recv()).await {
                 Ok(r) => r,
                 Err(_) => {
                     // Nothing arrived for a while: let the sink act on what it holds.
@@ -451,7 +421,7 @@ pub(crate) async fn run_sink<S: Sink>(
                 }
             },
         };
-        let Ok(Envelope { job, body }) = received else { break };
+        let Some(Envelope { job, body }) = received else { break };
         match &body {
             Ok(_) => {}
             Err(f) if f.kind == FailureKind::Interrupted => {}
@@ -478,12 +448,12 @@ pub(crate) async fn run_sink<S: Sink>(
             break;
         };
         sink = Some(s);
-        let r = r.and_then(|r| r);
-        metrics.record(t0.elapsed(), r.is_ok());
-        if arrived_ok && r.is_ok() {
+        let ok = matches!(r, Ok(Ok(())));
+        metrics.record(t0.elapsed(), ok);
+        if arrived_ok && ok {
             metrics.completed.fetch_add(1, Ordering::Relaxed);
         }
-        log("", r.map(Ok));
+        log("", r);
     }
     if let Some(s) = sink {
         let t0 = Instant::now();

@@ -40,22 +40,23 @@
 //! Validation reports every problem at once, each naming the file, the stage and the key.
 
 use std::{
+    any::Any,
     collections::{HashMap, HashSet},
     fmt,
     path::{Path, PathBuf},
     sync::Arc,
 };
 
-use serde::Deserialize;
+use serde::{de::DeserializeOwned, Deserialize};
 
 use super::{
     actor::PipelineContext,
+    error::Error,
     graph::{Pipeline, Port},
     message::{
         DescribedShape, InputFile, MatchedShape, PredictedShape, Shape, SparselyMatched, SpectralShape,
     },
     model::LiveModel,
-    stages::*,
     store::DataDir,
 };
 use crate::geodesic::HeatParams;
@@ -94,120 +95,133 @@ impl fmt::Display for PortType {
     }
 }
 
-/// A stage's type and settings.
-#[derive(Clone, Debug)]
-pub enum StageKind {
-    /// `folder`.
-    Folder(FolderConfig),
-    /// `watch-folder`.
-    WatchFolder(WatchConfig),
-    /// `synthetic`.
-    Synthetic(SyntheticConfig),
-    /// `ingest`.
-    Ingest(IngestConfig),
-    /// `spectral`.
-    Spectral(SpectralConfig),
-    /// `descriptor`.
-    Descriptor,
-    /// `forest`.
-    Forest,
-    /// `matcher`.
-    Matcher(MatcherConfig),
-    /// `fmap`.
-    Fmap(FmapConfig),
-    /// `match-sink`.
-    MatchSink(MatchSinkConfig),
-    /// `eval-sink`.
-    EvalSink(EvalSinkConfig),
-    /// `trainer`.
-    Trainer(TrainerConfig),
+/// What a stage type consumes (`None`: a source) and emits (`None`: a sink).
+pub type Ports = (Option<PortType>, Option<PortType>);
+
+/// A typed port of any payload, as a pipeline built from a file passes them between stages.
+#[derive(Clone)]
+pub enum AnyPort {
+    /// Input files.
+    File(Port<InputFile>),
+    /// Shapes.
+    Shape(Port<Shape>),
+    /// Shapes with spectra.
+    Spectrum(Port<SpectralShape>),
+    /// Described shapes.
+    Descriptor(Port<DescribedShape>),
+    /// Predictions.
+    Prediction(Port<PredictedShape>),
+    /// Sparse matches.
+    Matches(Port<SparselyMatched>),
+    /// Dense maps.
+    Map(Port<MatchedShape>),
 }
 
-/// The stage types, for messages.
-pub const STAGE_TYPES: &[&str] = &[
-    "folder",
-    "watch-folder",
-    "synthetic",
-    "ingest",
-    "spectral",
-    "descriptor",
-    "forest",
-    "matcher",
-    "fmap",
-    "match-sink",
-    "eval-sink",
-    "trainer",
-];
+/// The settings of one stage type, as read from a pipeline file: implemented once per type
+/// (in `stages/<type>.rs`), with the type's registration as `TYPE`.
+pub trait StageConfig: Any + fmt::Debug + Send + Sync + Sized {
+    /// The type's name, ports and parser (listed in [`super::stages::builtin`] or given to
+    /// [`Registry::with`]).
+    const TYPE: StageType;
+    /// Checks the settings beyond their syntax, naming the broken rule.
+    fn check(&self) -> Result<(), String> {
+        Ok(())
+    }
+    /// Adds the stage to the pipeline under construction; `input` is the upstream's output
+    /// (`None` for a source), of the type `TYPE.ports` says. Returns its output (`None` for a
+    /// sink).
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error>;
+}
 
-impl StageKind {
-    /// The type's name in pipeline files.
-    pub fn type_name(&self) -> &'static str {
-        match self {
-            StageKind::Folder(_) => "folder",
-            StageKind::WatchFolder(_) => "watch-folder",
-            StageKind::Synthetic(_) => "synthetic",
-            StageKind::Ingest(_) => "ingest",
-            StageKind::Spectral(_) => "spectral",
-            StageKind::Descriptor => "descriptor",
-            StageKind::Forest => "forest",
-            StageKind::Matcher(_) => "matcher",
-            StageKind::Fmap(_) => "fmap",
-            StageKind::MatchSink(_) => "match-sink",
-            StageKind::EvalSink(_) => "eval-sink",
-            StageKind::Trainer(_) => "trainer",
-        }
+/// A [`StageConfig`] behind a pointer, as a [`StageSpec`] holds it (implemented for every
+/// `StageConfig`).
+pub trait AnyStageConfig: Any + fmt::Debug + Send + Sync {
+    /// The type's name in pipeline files (`type = "…"`).
+    fn type_name(&self) -> &'static str;
+    /// What it consumes and emits.
+    fn ports(&self) -> Ports;
+    /// See [`StageConfig::build`].
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error>;
+    /// For downcasting ([`StageSpec::config`]).
+    fn as_any(&self) -> &dyn Any;
+}
+
+impl<C: StageConfig> AnyStageConfig for C {
+    fn type_name(&self) -> &'static str {
+        C::TYPE.name
+    }
+    fn ports(&self) -> Ports {
+        C::TYPE.ports
+    }
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
+        StageConfig::build(self, b, input)
+    }
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+}
+
+/// A stage type: its name, ports and how its settings are parsed. Each `stages/<type>.rs`
+/// holds one as `TYPE`; a [`Registry`] lists those a pipeline file may use.
+#[derive(Clone, Copy)]
+pub struct StageType {
+    /// The name in pipeline files.
+    pub name: &'static str,
+    /// What it consumes and emits.
+    pub ports: Ports,
+    /// Parses and checks the settings (the stage table without `name`, `type`, `input`).
+    pub parse: fn(toml::Table) -> Result<Arc<dyn AnyStageConfig>, String>,
+}
+
+impl fmt::Debug for StageType {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "StageType({})", self.name)
+    }
+}
+
+/// Parses a stage's settings into `C` (unknown keys rejected by `C`'s serde attributes) and
+/// checks them: the `parse` of most [`StageType`]s.
+pub fn parse_config<C: StageConfig + DeserializeOwned>(
+    rest: toml::Table,
+) -> Result<Arc<dyn AnyStageConfig>, String> {
+    let c: C = toml::Value::Table(rest).try_into::<C>().map_err(|e| e.message().to_string())?;
+    c.check()?;
+    Ok(Arc::new(c))
+}
+
+/// The stage types a pipeline file may use.
+#[derive(Clone, Debug)]
+pub struct Registry {
+    types: Vec<StageType>,
+}
+
+impl Default for Registry {
+    fn default() -> Self {
+        Self::builtin()
+    }
+}
+
+impl Registry {
+    /// The built-in types ([`super::stages::builtin`]).
+    pub fn builtin() -> Self {
+        Self { types: super::stages::builtin() }
     }
 
-    /// What it consumes (`None`: a source) and emits (`None`: a sink).
-    pub fn ports(&self) -> (Option<PortType>, Option<PortType>) {
-        ports_of(self.type_name()).unwrap_or((None, None))
+    /// The registry with one more type (replacing a built-in one of the same name).
+    pub fn with(mut self, t: StageType) -> Self {
+        self.types.retain(|x| x.name != t.name);
+        self.types.push(t);
+        self
     }
 
-    fn parse(kind: &str, rest: toml::Table) -> Result<StageKind, String> {
-        fn cfg<T: serde::de::DeserializeOwned>(rest: toml::Table) -> Result<T, String> {
-            toml::Value::Table(rest).try_into::<T>().map_err(|e| e.message().to_string())
-        }
-        fn none(rest: toml::Table) -> Result<(), String> {
-            match rest.keys().next() {
-                Some(k) => Err(format!("unknown key `{k}` (this stage type takes no settings)")),
-                None => Ok(()),
-            }
-        }
-        Ok(match kind {
-            "folder" => StageKind::Folder(cfg(rest)?),
-            "watch-folder" => StageKind::WatchFolder(cfg(rest)?),
-            "synthetic" => StageKind::Synthetic(cfg(rest)?),
-            "ingest" => StageKind::Ingest(cfg(rest)?),
-            "spectral" => StageKind::Spectral(cfg(rest)?),
-            "descriptor" => {
-                none(rest)?;
-                StageKind::Descriptor
-            }
-            "forest" => {
-                none(rest)?;
-                StageKind::Forest
-            }
-            "matcher" => {
-                let c: MatcherConfig = cfg(rest)?;
-                check_regularizer(&regularizer_params(&c, &FmapConfig::default()))?;
-                StageKind::Matcher(c)
-            }
-            "fmap" => {
-                let c: FmapConfig = cfg(rest)?;
-                check_regularizer(&regularizer_params(&MatcherConfig::default(), &c))?;
-                StageKind::Fmap(c)
-            }
-            "match-sink" => StageKind::MatchSink(cfg(rest)?),
-            "eval-sink" => StageKind::EvalSink(cfg(rest)?),
-            "trainer" => {
-                let c: TrainerConfig = cfg(rest)?;
-                c.forest_params()?;
-                StageKind::Trainer(c)
-            }
-            other => {
-                return Err(format!("unknown stage type `{other}` (one of: {})", STAGE_TYPES.join(", ")))
-            }
-        })
+    /// The type named `name`.
+    pub fn get(&self, name: &str) -> Option<&StageType> {
+        self.types.iter().find(|t| t.name == name)
+    }
+
+    /// The names, for messages.
+    pub fn names(&self) -> Vec<&'static str> {
+        self.types.iter().map(|t| t.name).collect()
     }
 }
 
@@ -219,7 +233,19 @@ pub struct StageSpec {
     /// The stage it consumes (none for sources).
     pub input: Option<String>,
     /// Type and settings.
-    pub kind: StageKind,
+    pub config: Arc<dyn AnyStageConfig>,
+}
+
+impl StageSpec {
+    /// The type's name.
+    pub fn type_name(&self) -> &'static str {
+        self.config.type_name()
+    }
+
+    /// The settings, if they are of type `C`.
+    pub fn config<C: StageConfig>(&self) -> Option<&C> {
+        self.config.as_any().downcast_ref::<C>()
+    }
 }
 
 /// Settings for the whole pipeline.
@@ -268,25 +294,14 @@ pub struct PipelineSpec {
 }
 
 /// Problems found in a pipeline file, all of them.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{file}: invalid pipeline{}", problems.iter().map(|p| format!("\n  - {p}")).collect::<String>())]
 pub struct ConfigError {
     /// The file (or `<text>`).
     pub file: String,
     /// One line per problem.
     pub problems: Vec<String>,
 }
-
-impl fmt::Display for ConfigError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}: invalid pipeline", self.file)?;
-        for p in &self.problems {
-            write!(f, "\n  - {p}")?;
-        }
-        Ok(())
-    }
-}
-
-impl std::error::Error for ConfigError {}
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -331,6 +346,12 @@ impl PipelineSpec {
     /// assert!(text.contains("takes shape but `in` emits file"), "{text}");
     /// ```
     pub fn from_toml(text: &str, file: &str) -> Result<Self, ConfigError> {
+        Self::from_toml_with(text, file, &Registry::builtin())
+    }
+
+    /// [`PipelineSpec::from_toml`] with the stage types of `registry` (built-in ones and
+    /// your own).
+    pub fn from_toml_with(text: &str, file: &str, registry: &Registry) -> Result<Self, ConfigError> {
         let err = |problems: Vec<String>| ConfigError { file: file.to_string(), problems };
         let raw: RawFile = toml::from_str(text).map_err(|e| err(vec![e.to_string().trim().to_string()]))?;
         let mut problems = Vec::new();
@@ -388,9 +409,17 @@ impl PipelineSpec {
                     continue;
                 }
             };
-            nodes.push(Node { name: name.clone(), input: input.clone(), ports: ports_of(&kind) });
-            match StageKind::parse(&kind, t) {
-                Ok(k) => stages.push(StageSpec { name, input, kind: k }),
+            let Some(ty) = registry.get(&kind) else {
+                nodes.push(Node { name, input, ports: None });
+                problems.push(format!(
+                    "{label} ({kind}): unknown stage type `{kind}` (one of: {})",
+                    registry.names().join(", ")
+                ));
+                continue;
+            };
+            nodes.push(Node { name: name.clone(), input: input.clone(), ports: Some(ty.ports) });
+            match (ty.parse)(t) {
+                Ok(config) => stages.push(StageSpec { name, input, config }),
                 Err(e) => problems.push(format!("{label} ({kind}): {e}")),
             }
         }
@@ -404,12 +433,22 @@ impl PipelineSpec {
 
     /// Whether any stage watches a folder (a daemon).
     pub fn is_daemon(&self) -> bool {
-        self.stages.iter().any(|s| matches!(s.kind, StageKind::WatchFolder(_)))
+        self.configs::<super::stages::WatchConfig>().next().is_some()
     }
 
-    /// Whether a stage of this type is present.
-    pub fn has(&self, pred: impl Fn(&StageKind) -> bool) -> bool {
-        self.stages.iter().any(|s| pred(&s.kind))
+    /// Whether a stage of the type named `type_name` is present.
+    pub fn has_type(&self, type_name: &str) -> bool {
+        self.stages.iter().any(|s| s.type_name() == type_name)
+    }
+
+    /// The settings of every stage whose settings are of type `C`.
+    pub fn configs<C: StageConfig>(&self) -> impl Iterator<Item = &C> {
+        self.stages.iter().filter_map(|s| s.config::<C>())
+    }
+
+    /// The stage named `name`.
+    pub fn stage(&self, name: &str) -> Option<&StageSpec> {
+        self.stages.iter().find(|s| s.name == name)
     }
 }
 
@@ -418,24 +457,6 @@ struct Node {
     name: String,
     input: Option<String>,
     ports: Option<(Option<PortType>, Option<PortType>)>,
-}
-
-/// The ports of a stage type, by name.
-fn ports_of(kind: &str) -> Option<(Option<PortType>, Option<PortType>)> {
-    use PortType::*;
-    Some(match kind {
-        "folder" | "watch-folder" => (None, Some(File)),
-        "synthetic" => (None, Some(Shape)),
-        "ingest" => (Some(File), Some(Shape)),
-        "spectral" => (Some(Shape), Some(Spectrum)),
-        "descriptor" => (Some(Spectrum), Some(Descriptor)),
-        "forest" => (Some(Descriptor), Some(Prediction)),
-        "matcher" => (Some(Prediction), Some(Matches)),
-        "fmap" => (Some(Matches), Some(Map)),
-        "match-sink" | "eval-sink" => (Some(Map), None),
-        "trainer" => (Some(Spectrum), None),
-        _ => return None,
-    })
 }
 
 fn validate_graph(stages: &[Node], problems: &mut Vec<String>) {
@@ -474,18 +495,12 @@ fn validate_graph(stages: &[Node], problems: &mut Vec<String>) {
     }
     for s in stages {
         let users = consumers.get(s.name.as_str()).map_or(&[][..], |v| v.as_slice());
-        match (s.ports.map(|p| p.1), users.len()) {
-            (Some(Some(o)), 0) => problems.push(format!(
+        // An output may feed several stages (each gets every job), but must feed one.
+        if let (Some(Some(o)), 0) = (s.ports.map(|p| p.1), users.len()) {
+            problems.push(format!(
                 "stage `{}`: its output ({o}) goes nowhere; add a stage with `input = \"{}\"`",
                 s.name, s.name
-            )),
-            (_, n) if n > 1 => problems.push(format!(
-                "stage `{}`: feeds {} stages ({}); an output goes to exactly one stage",
-                s.name,
-                n,
-                users.join(", ")
-            )),
-            _ => {}
+            ));
         }
     }
     // Everything must hang off a source (this also rules out cycles).
@@ -541,37 +556,63 @@ fn validate_graph(stages: &[Node], problems: &mut Vec<String>) {
     }
 }
 
-enum AnyPort {
-    File(Port<InputFile>),
-    Shape(Port<Shape>),
-    Spectrum(Port<SpectralShape>),
-    Descriptor(Port<DescribedShape>),
-    Prediction(Port<PredictedShape>),
-    Matches(Port<SparselyMatched>),
-    Map(Port<MatchedShape>),
+/// What a [`StageConfig::build`] gets: the pipeline under construction and what the stage
+/// may need to know about the rest of the file.
+pub struct Builder<'a> {
+    /// The pipeline being built.
+    pub pipeline: &'a mut Pipeline,
+    /// The whole file.
+    pub spec: &'a PipelineSpec,
+    /// The stage being built.
+    pub stage: &'a StageSpec,
+    /// The data folder.
+    pub data: &'a DataDir,
+    /// The live model.
+    pub live: &'a Arc<LiveModel>,
+    /// Heat-method settings shared by the trainer's reference and the matcher.
+    pub heat: HeatParams,
 }
 
-/// A folder of a stage, taken from the data folder when relative.
-fn resolve(data: &DataDir, p: &Path) -> PathBuf {
-    if p.is_absolute() {
-        p.to_path_buf()
-    } else {
-        data.root().join(p)
+impl Builder<'_> {
+    /// The stage's name.
+    pub fn name(&self) -> &str {
+        &self.stage.name
+    }
+
+    /// A folder of a stage, taken from the data folder when relative.
+    pub fn resolve(&self, p: &Path) -> PathBuf {
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            self.data.root().join(p)
+        }
+    }
+
+    /// The settings of the stage's upstream, if they are of type `C`.
+    pub fn upstream<C: StageConfig>(&self) -> Option<&C> {
+        self.stage.input.as_deref().and_then(|i| self.spec.stage(i)).and_then(|u| u.config::<C>())
+    }
+
+    /// An error of this stage.
+    pub fn error(&self, message: impl fmt::Display) -> Error {
+        Error::stage(&self.stage.name, message.to_string())
+    }
+
+    /// The error for an input of the wrong type (validation rules it out for files).
+    pub fn wrong_input(&self) -> Error {
+        self.error("input of the wrong type")
     }
 }
 
-/// Builds the pipeline a spec describes, over `data` and `live`. The heat-method settings are
-/// shared by the trainer's reference and the matcher.
+/// Builds the pipeline a spec describes, over `data` and `live`.
 pub fn build(
     spec: &PipelineSpec,
     data: &DataDir,
     live: Arc<LiveModel>,
     ctx: PipelineContext,
-) -> Result<Pipeline, String> {
-    let heat = HeatParams::default();
+) -> Result<Pipeline, Error> {
     let mut p =
         Pipeline::with_context(data.clone(), live.clone(), ctx).with_capacity(spec.settings.channel_capacity);
-    let shutdown = p.context().shutdown.clone();
     let mut outputs: HashMap<String, AnyPort> = HashMap::new();
     let mut done: HashSet<String> = HashSet::new();
     // Sources first, then any stage whose input is built, until all are.
@@ -583,92 +624,21 @@ pub fn build(
             }
             let input = match &s.input {
                 None => None,
-                Some(i) => match outputs.remove(i) {
-                    Some(port) => Some(port),
+                // A port may feed several stages: each takes a clone.
+                Some(i) => match outputs.get(i) {
+                    Some(port) => Some(port.clone()),
                     None => continue,
                 },
             };
-            let name = s.name.as_str();
-            let wrong = || format!("stage `{name}`: input of the wrong type");
-            let out = match (&s.kind, input) {
-                (StageKind::Folder(c), None) => {
-                    let mut c = c.clone();
-                    c.folder = resolve(data, &c.folder);
-                    Some(AnyPort::File(p.source(name, FolderSource::new(c))))
-                }
-                (StageKind::WatchFolder(c), None) => {
-                    Some(AnyPort::File(p.source(name, WatchSource::new(data.clone(), c.clone()))))
-                }
-                (StageKind::Synthetic(c), None) => {
-                    Some(AnyPort::Shape(p.source(name, SyntheticSource::new(c.clone()))))
-                }
-                (StageKind::Ingest(c), Some(AnyPort::File(i))) => {
-                    // Files dropped into a watched folder: links are not followed.
-                    let watched = s.input.as_deref().is_some_and(|i| {
-                        spec.stages.iter().any(|u| u.name == i && matches!(u.kind, StageKind::WatchFolder(_)))
-                    });
-                    let st = IngestStage::new(c.clone())
-                        .with_limits(spec.settings.limits)
-                        .follow_symlinks(!watched);
-                    Some(AnyPort::Shape(p.stage(name, i, st)))
-                }
-                (StageKind::Spectral(c), Some(AnyPort::Shape(i))) => {
-                    let st = SpectralStage::new(c, Some(data.cache()))
-                        .map_err(|e| format!("stage `{name}`: {e}"))?;
-                    Some(AnyPort::Spectrum(p.stage(name, i, st)))
-                }
-                (StageKind::Descriptor, Some(AnyPort::Spectrum(i))) => Some(AnyPort::Descriptor(p.stage(
-                    name,
-                    i,
-                    DescriptorStage::new(live.clone(), shutdown.clone()),
-                ))),
-                (StageKind::Forest, Some(AnyPort::Descriptor(i))) => {
-                    Some(AnyPort::Prediction(p.stage(name, i, ForestStage)))
-                }
-                (StageKind::Matcher(c), Some(AnyPort::Prediction(i))) => {
-                    Some(AnyPort::Matches(p.stage(name, i, MatcherStage::new(c))))
-                }
-                (StageKind::Fmap(c), Some(AnyPort::Matches(i))) => {
-                    Some(AnyPort::Map(p.stage(name, i, FmapStage::new(c))))
-                }
-                (StageKind::MatchSink(c), Some(AnyPort::Map(i))) => {
-                    let mut c = c.clone();
-                    c.folder = resolve(data, &c.folder);
-                    p.sink(name, i, MatchSink::new(data.clone(), c));
-                    None
-                }
-                (StageKind::EvalSink(c), Some(AnyPort::Map(i))) => {
-                    let mut c = c.clone();
-                    c.folder = resolve(data, &c.folder);
-                    p.sink(name, i, EvalSink::new(data.clone(), c));
-                    None
-                }
-                (StageKind::Trainer(c), Some(AnyPort::Spectrum(i))) => {
-                    let upstream_k = s.input.as_deref().and_then(|i| {
-                        spec.stages.iter().find(|u| u.name == i).and_then(|u| match &u.kind {
-                            StageKind::Spectral(sc) => Some(sc.k),
-                            _ => None,
-                        })
-                    });
-                    let mut t = TrainerSink::new(data.clone(), c.clone(), heat, live.clone())
-                        .map_err(|e| format!("stage `{name}`: {e}"))?
-                        .with_shutdown(shutdown.clone())
-                        .with_limits(spec.settings.limits);
-                    if let Some(k) = upstream_k {
-                        t = t.with_spectrum_k(k);
-                    }
-                    p.sink(name, i, t);
-                    None
-                }
-                _ => return Err(wrong()),
-            };
-            if let Some(o) = out {
+            let mut b =
+                Builder { pipeline: &mut p, spec, stage: s, data, live: &live, heat: HeatParams::default() };
+            if let Some(o) = s.config.build(&mut b, input)? {
                 outputs.insert(s.name.clone(), o);
             }
             done.insert(s.name.clone());
         }
         if done.len() == before {
-            return Err("the stages do not form a graph fed by sources".into());
+            return Err(Error::BadInput("the stages do not form a graph fed by sources".into()));
         }
     }
     Ok(p)

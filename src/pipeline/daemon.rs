@@ -5,14 +5,16 @@
 use std::{fs, path::Path, sync::Arc};
 
 use super::{
-    actor::{PipelineContext, Shutdown},
-    config::{build, PipelineSpec, StageKind},
+    actor::PipelineContext,
+    config::{build, PipelineSpec},
+    error::{Error, IoAt},
     graph::{PipelineReport, RunOptions},
     lock::DataLock,
     message::{Failure, FailureKind, Job},
-    model::LiveModel,
-    stages::{load_live_model_for, ServeNeeds},
-    store::{atomic_write, label_map_text, stored_shapes, DataDir, InputKind},
+    model::{load_live_model_for, LiveModel, ServeNeeds},
+    shutdown::Shutdown,
+    stages::{SpectralConfig, TrainerConfig},
+    store::{atomic_write, label_map_text, read_dir_sorted, reject, stored_shapes, DataDir, InputKind},
 };
 use crate::{
     forest::labels_identity,
@@ -46,17 +48,17 @@ pub fn bootstrap_synthetic(
     n_train: usize,
     n_scans: usize,
     seed: u64,
-) -> Result<usize, String> {
+) -> Result<usize, Error> {
     let fam = creature_family(
         &CreatureParams { target_vertices: vertices, seed, ..Default::default() },
         n_train + n_scans,
     )
-    .map_err(|e| format!("synthetic family: {e}"))?;
+    .map_err(|e| Error::BadInput(format!("synthetic family: {e}")))?;
     let n = fam.template.n_vertices();
     let labels = label_map_text(&labels_identity(n));
     // Scans first: a watcher sees complete files only (written aside, then renamed in).
     let stage = data.root().join(".bootstrap");
-    fs::create_dir_all(&stage).map_err(|e| format!("{}: {e}", stage.display()))?;
+    fs::create_dir_all(&stage).at(&stage)?;
     for (i, mesh) in fam.shapes.iter().enumerate() {
         let (dir, name) = if i < n_train {
             (data.labeled(), format!("creature{i}"))
@@ -64,12 +66,11 @@ pub fn bootstrap_synthetic(
             (data.incoming(), format!("scan-creature{i}"))
         };
         let tmp = stage.join(format!("{name}.off"));
-        write_mesh(&tmp, mesh).map_err(|e| e.to_string())?;
+        write_mesh(&tmp, mesh)?;
         if i < n_train {
-            atomic_write(&dir.join(format!("{name}.labels")), labels.as_bytes())
-                .map_err(|e| e.to_string())?;
+            atomic_write(&dir.join(format!("{name}.labels")), labels.as_bytes())?;
         }
-        fs::rename(&tmp, dir.join(format!("{name}.off"))).map_err(|e| format!("{}: {e}", dir.display()))?;
+        fs::rename(&tmp, dir.join(format!("{name}.off"))).at(&dir)?;
     }
     let _ = fs::remove_dir(&stage);
     Ok(n)
@@ -78,17 +79,17 @@ pub fn bootstrap_synthetic(
 /// Prepares the data folder of a pipeline: creates the folders of a daemon and recovers from a
 /// crash, then loads the newest model. Fails when the pipeline needs a model and nothing can
 /// produce one.
-pub fn prepare(spec: &PipelineSpec, data: DataDir) -> Result<RunSetup, String> {
+pub fn prepare(spec: &PipelineSpec, data: DataDir) -> Result<RunSetup, Error> {
     let mut notes = Vec::new();
     // Before anything moves: a second process on this folder would recover (move back) the
     // first one's in-flight inputs.
     let lock = DataLock::acquire(data.root())?;
     let mut skip_versions = Vec::new();
     if spec.is_daemon() {
-        data.create().map_err(|e| format!("cannot create the data folder: {e}"))?;
+        data.create().map_err(|e| Error::BadInput(format!("cannot create the data folder: {e}")))?;
         let crash = account_for_a_crash(&data, &mut notes)?;
         skip_versions = crash.quarantined_models.clone();
-        let rec = data.recover().map_err(|e| format!("recovery failed: {e}"))?;
+        let rec = data.recover().map_err(|e| Error::BadInput(format!("recovery failed: {e}")))?;
         for p in &rec.committed {
             notes.push(format!("recovered: finished committing {}", p.display()));
         }
@@ -105,7 +106,7 @@ pub fn prepare(spec: &PipelineSpec, data: DataDir) -> Result<RunSetup, String> {
             ));
         }
     }
-    let fresh = spec.has(|k| matches!(k, StageKind::Trainer(c) if c.fresh));
+    let fresh = spec.configs::<TrainerConfig>().any(|c| c.fresh);
     let needs = ServeNeeds { limits: spec.settings.limits, spectrum_k: scan_spectrum_k(spec), skip_versions };
     let loaded = if fresh { None } else { load_live_model_for(&data, HeatParams::default(), &needs)? };
     let live = match loaded {
@@ -121,14 +122,14 @@ pub fn prepare(spec: &PipelineSpec, data: DataDir) -> Result<RunSetup, String> {
         }
         None => Arc::new(LiveModel::new()),
     };
-    let needs_model = spec.has(|k| matches!(k, StageKind::Descriptor));
-    let has_trainer = spec.has(|k| matches!(k, StageKind::Trainer(_)));
+    let needs_model = spec.has_type("descriptor");
+    let has_trainer = spec.configs::<TrainerConfig>().next().is_some();
     if live.current().is_none() && needs_model && !has_trainer {
-        return Err(format!(
+        return Err(Error::Model(format!(
             "no model in {}: this pipeline matches but does not train; run one that trains first \
              (e.g. `shapeforest run pipelines/train.toml`)",
             data.models().display()
-        ));
+        )));
     }
     let labelled = fs::read_dir(data.labeled()).map(|d| d.count()).unwrap_or(0);
     let nothing_to_learn =
@@ -144,8 +145,8 @@ pub fn prepare(spec: &PipelineSpec, data: DataDir) -> Result<RunSetup, String> {
     });
     if spec.is_daemon() {
         let marker = Running { pid: std::process::id(), model_version: live.version() };
-        let text = serde_json::to_string(&marker).map_err(|e| e.to_string())?;
-        atomic_write(&data.running_marker(), text.as_bytes()).map_err(|e| e.to_string())?;
+        let text = serde_json::to_string(&marker)?;
+        atomic_write(&data.running_marker(), text.as_bytes())?;
     }
     Ok(RunSetup { data, live, notes, nothing_to_learn, waiting_hint, lock })
 }
@@ -154,12 +155,9 @@ pub fn prepare(spec: &PipelineSpec, data: DataDir) -> Result<RunSetup, String> {
 fn scan_spectrum_k(spec: &PipelineSpec) -> Option<usize> {
     spec.stages
         .iter()
-        .filter(|s| matches!(s.kind, StageKind::Descriptor))
-        .filter_map(|d| spec.stages.iter().find(|u| Some(&u.name) == d.input.as_ref()))
-        .filter_map(|u| match &u.kind {
-            StageKind::Spectral(c) => Some(c.k),
-            _ => None,
-        })
+        .filter(|s| s.type_name() == "descriptor")
+        .filter_map(|d| d.input.as_deref().and_then(|i| spec.stage(i)))
+        .filter_map(|u| u.config::<SpectralConfig>().map(|c| c.k))
         .min()
 }
 
@@ -192,7 +190,7 @@ const POISON_CRASHES: u32 = 2;
 /// `rejected/` with a report (poison: it would crash the daemon at every restart); a model in
 /// use at two crashes in a row, with no input to blame, is not loaded again (the next newest
 /// is used).
-fn account_for_a_crash(data: &DataDir, notes: &mut Vec<String>) -> Result<CrashLog, String> {
+fn account_for_a_crash(data: &DataDir, notes: &mut Vec<String>) -> Result<CrashLog, Error> {
     let log_path = data.root().join(".inflight").join("crashes.json");
     let mut log: CrashLog =
         fs::read_to_string(&log_path).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or_default();
@@ -202,7 +200,7 @@ fn account_for_a_crash(data: &DataDir, notes: &mut Vec<String>) -> Result<CrashL
     let mut in_flight = Vec::new();
     for kind in [InputKind::Scan, InputKind::Labeled] {
         let dir = data.inflight(kind);
-        for p in super::store::read_dir_sorted(&dir).unwrap_or_default() {
+        for p in read_dir_sorted(&dir).unwrap_or_default() {
             if p.is_file() || p.is_symlink() {
                 in_flight.push((kind, p));
             }
@@ -231,11 +229,7 @@ fn account_for_a_crash(data: &DataDir, notes: &mut Vec<String>) -> Result<CrashL
              retried; move it back to {}/ to try again",
             if *kind == InputKind::Scan { "incoming" } else { "labeled" }
         );
-        super::stages::reject(
-            data,
-            &job,
-            &Failure { stage: "recovery".into(), kind: FailureKind::Internal, message: why },
-        )?;
+        reject(data, &job, &Failure { stage: "recovery".into(), kind: FailureKind::Internal, message: why })?;
         log.inputs.remove(&key(*kind, p));
         quarantined_inputs += 1;
         notes.push(format!("quarantined {} after {POISON_CRASHES} crashes (see rejected/)", p.display()));
@@ -261,8 +255,8 @@ fn account_for_a_crash(data: &DataDir, notes: &mut Vec<String>) -> Result<CrashL
         running.as_ref().map_or("?".into(), |r| r.pid.to_string()),
         in_flight.len()
     ));
-    let text = serde_json::to_string_pretty(&log).map_err(|e| e.to_string())?;
-    atomic_write(&log_path, text.as_bytes()).map_err(|e| e.to_string())?;
+    let text = serde_json::to_string_pretty(&log)?;
+    atomic_write(&log_path, text.as_bytes())?;
     let _ = fs::remove_file(&marker);
     Ok(log)
 }
@@ -273,8 +267,8 @@ pub fn run_pipeline(
     path: &Path,
     data_dir: Option<&Path>,
     options: RunOptions,
-) -> Result<PipelineReport, String> {
-    let spec = PipelineSpec::from_file(path).map_err(|e| e.to_string())?;
+) -> Result<PipelineReport, Error> {
+    let spec = PipelineSpec::from_file(path)?;
     run_spec(&spec, data_dir, options, None, |_| Ok(()))
 }
 
@@ -285,15 +279,15 @@ pub fn run_spec(
     data_dir: Option<&Path>,
     options: RunOptions,
     shutdown: Option<Shutdown>,
-    before_run: impl FnOnce(&RunSetup) -> Result<(), String>,
-) -> Result<PipelineReport, String> {
+    before_run: impl FnOnce(&RunSetup) -> Result<(), Error>,
+) -> Result<PipelineReport, Error> {
     let data =
         DataDir::new(data_dir.map(Path::to_path_buf).unwrap_or_else(|| spec.settings.data_dir.clone()));
     let setup = prepare(spec, data)?;
     before_run(&setup)?;
     let ctx = PipelineContext::with_shutdown(shutdown.unwrap_or_default());
     let pipeline = build(spec, &setup.data, setup.live.clone(), ctx)?;
-    let report = pipeline.run(options).map_err(|e| format!("cannot start the runtime: {e}"));
+    let report = pipeline.run(options);
     // A clean stop: the next start is not a crash recovery.
     let _ = fs::remove_file(setup.data.running_marker());
     report

@@ -2,22 +2,48 @@
 //! mis-wired graph a compile error) or from a `pipelines/*.toml` file (see [`super::config`]).
 
 use std::{
-    sync::Arc,
+    sync::{Arc, Mutex},
     time::{Duration, Instant},
 };
 
 use super::{
     actor::{run_sink, run_source, run_stage, PipelineContext, Sink, Source, Stage, StageSummary},
-    message::Envelope,
+    error::Error,
     model::LiveModel,
     store::DataDir,
+    transport::{InProcess, Output, Payload, Sender, Transport},
 };
 
-/// The output of an actor, to be consumed by exactly one other (it is not `Clone`).
+/// The output of an actor. Every actor given it as input gets every envelope (fan-out: clone
+/// the port to attach a second consumer, a viewer or a metrics exporter beside a sink).
 pub struct Port<T> {
-    rx: flume::Receiver<Envelope<T>>,
+    consumers: Arc<Mutex<Vec<Arc<dyn Sender<T>>>>>,
     /// Name of the producing actor.
     pub producer: String,
+}
+
+impl<T> Clone for Port<T> {
+    fn clone(&self) -> Self {
+        Self { consumers: self.consumers.clone(), producer: self.producer.clone() }
+    }
+}
+
+impl<T: Payload> Port<T> {
+    fn new(producer: &str) -> Self {
+        Self { consumers: Arc::default(), producer: producer.to_string() }
+    }
+
+    /// The output to the consumers attached so far (taken when the producer starts).
+    pub fn output(&self) -> Output<T> {
+        let consumers = self.consumers.lock().map(|mut c| std::mem::take(&mut *c)).unwrap_or_default();
+        Output::new(consumers)
+    }
+
+    fn attach(&self, sender: Arc<dyn Sender<T>>) {
+        if let Ok(mut c) = self.consumers.lock() {
+            c.push(sender);
+        }
+    }
 }
 
 type Spawn = Box<dyn FnOnce() -> tokio::task::JoinHandle<()> + Send>;
@@ -38,20 +64,37 @@ type Spawn = Box<dyn FnOnce() -> tokio::task::JoinHandle<()> + Send>;
 /// let report = p.run(RunOptions::default()).unwrap();
 /// println!("{}", report.table());
 /// ```
-pub struct Pipeline {
+pub struct Pipeline<X: Transport = InProcess> {
     ctx: PipelineContext,
     data: DataDir,
     live: Arc<LiveModel>,
     capacity: usize,
     spawns: Vec<Spawn>,
+    transport: X,
+}
+
+/// What [`RunOptions::on_signal`] is told.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SignalEvent {
+    /// The first Ctrl-C / SIGTERM: the pipeline finishes the jobs in flight and stops.
+    ShuttingDown,
+    /// Another signal while shutting down: the caller may exit at once (the data folder's
+    /// running marker is already removed, so the next start is not taken for a crash; claimed
+    /// inputs are taken up again then).
+    Again,
 }
 
 /// How [`Pipeline::run`] behaves.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct RunOptions {
-    /// Shut down gracefully on Ctrl-C or SIGTERM (a second signal exits at once). Default false
-    /// (the command-line tool sets it).
+    /// Shut down gracefully on Ctrl-C or SIGTERM. Default false (the command-line tool sets it).
     pub handle_signals: bool,
+    /// Called on each signal when `handle_signals` is set (the command-line tool prints a line,
+    /// and exits at [`SignalEvent::Again`]); the library itself never prints or exits.
+    pub on_signal: Option<fn(SignalEvent)>,
+    /// Worker threads of the async runtime that moves envelopes (CPU work runs on its blocking
+    /// pool and rayon). Default 2.
+    pub worker_threads: Option<usize>,
     /// Shut down after this long (for benchmarks and tests).
     pub stop_after: Option<Duration>,
     /// Log every actor's metrics at this interval (`tracing` info; the daemon uses a minute).
@@ -72,6 +115,8 @@ pub struct PipelineReport {
     /// Failures of actors themselves (a source that could not list its folder, a trainer
     /// whose training failed), as opposed to rejected jobs.
     pub problems: Vec<String>,
+    /// Results for the caller to show, in the order the sinks finished (an evaluation's table).
+    pub summary: Vec<String>,
 }
 
 impl PipelineReport {
@@ -113,7 +158,15 @@ impl Pipeline {
 
     /// An empty pipeline with a given context (e.g. one whose shutdown flag the caller holds).
     pub fn with_context(data: DataDir, live: Arc<LiveModel>, ctx: PipelineContext) -> Self {
-        Self { ctx, data, live, capacity: 2, spawns: Vec::new() }
+        Self { ctx, data, live, capacity: 2, spawns: Vec::new(), transport: InProcess }
+    }
+}
+
+impl<X: Transport> Pipeline<X> {
+    /// The same pipeline, connecting the actors added from now on with `transport`.
+    pub fn with_transport<Y: Transport>(self, transport: Y) -> Pipeline<Y> {
+        let Self { ctx, data, live, capacity, spawns, .. } = self;
+        Pipeline { ctx, data, live, capacity, spawns, transport }
     }
 
     /// Capacity of every channel created after this call (default 2: a burst of inputs waits
@@ -140,41 +193,44 @@ impl Pipeline {
 
     /// Adds a source.
     pub fn source<S: Source>(&mut self, name: &str, source: S) -> Port<S::Out> {
-        let (tx, rx) = flume::bounded(self.capacity);
-        let (ctx, n) = (self.ctx.clone(), name.to_string());
+        let port = Port::new(name);
+        let (ctx, n, out) = (self.ctx.clone(), name.to_string(), port.clone());
         let metrics = self.ctx.metrics_for(name);
-        self.spawns.push(Box::new(move || tokio::spawn(run_source(source, n, tx, ctx, metrics))));
-        Port { rx, producer: name.to_string() }
+        self.spawns.push(Box::new(move || tokio::spawn(run_source(source, n, out.output(), ctx, metrics))));
+        port
     }
 
-    /// Adds a stage reading `input`.
+    /// Adds a stage reading `input` (which may feed other actors too).
     pub fn stage<S: Stage>(&mut self, name: &str, input: Port<S::In>, stage: S) -> Port<S::Out> {
-        let (tx, rx) = flume::bounded(self.capacity);
-        let (ctx, n) = (self.ctx.clone(), name.to_string());
+        let (tx, rx) = self.transport.connect(&input.producer, name, self.capacity);
+        input.attach(tx);
+        let port = Port::new(name);
+        let (ctx, n, out) = (self.ctx.clone(), name.to_string(), port.clone());
         let metrics = self.ctx.metrics_for(name);
-        let in_rx = input.rx;
-        self.spawns.push(Box::new(move || tokio::spawn(run_stage(stage, n, in_rx, tx, ctx, metrics))));
-        Port { rx, producer: name.to_string() }
+        self.spawns.push(Box::new(move || tokio::spawn(run_stage(stage, n, rx, out.output(), ctx, metrics))));
+        port
     }
 
-    /// Adds a sink reading `input`.
+    /// Adds a sink reading `input` (which may feed other actors too).
     pub fn sink<S: Sink>(&mut self, name: &str, input: Port<S::In>, sink: S) {
+        let (tx, rx) = self.transport.connect(&input.producer, name, self.capacity);
+        input.attach(tx);
         let n = name.to_string();
         let metrics = self.ctx.metrics_for(name);
-        let in_rx = input.rx;
         let ctx = self.ctx.clone();
-        self.spawns.push(Box::new(move || tokio::spawn(run_sink(sink, n, in_rx, metrics, ctx))));
+        self.spawns.push(Box::new(move || tokio::spawn(run_sink(sink, n, rx, metrics, ctx))));
     }
 
     /// Runs every actor until the sources are exhausted and every job has reached its sink,
     /// or until shutdown (signal, [`RunOptions::stop_after`], or the context's flag).
-    pub fn run(self, options: RunOptions) -> std::io::Result<PipelineReport> {
+    pub fn run(self, options: RunOptions) -> Result<PipelineReport, Error> {
         let t0 = Instant::now();
         let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
+            .worker_threads(options.worker_threads.unwrap_or(2).max(1))
             .thread_name("shapeforest-actor")
             .enable_all()
-            .build()?;
+            .build()
+            .map_err(Error::Runtime)?;
         let ctx = self.ctx.clone();
         let live = self.live.clone();
         let run_ctx = self.ctx.clone();
@@ -213,17 +269,20 @@ impl Pipeline {
                     };
                     tokio::select! {
                         _ = shutdown_signal(options.handle_signals) => {
-                            eprintln!("shapeforest: shutting down — finishing jobs in flight (signal again to exit at once)");
                             shutdown.trigger();
-                            if options.handle_signals {
-                                tokio::spawn(async move {
+                            if let Some(tell) = options.on_signal {
+                                tell(SignalEvent::ShuttingDown);
+                            }
+                            tokio::spawn(async move {
+                                loop {
                                     shutdown_signal(true).await;
                                     // Asked for, not a crash: in-flight inputs are not suspects.
                                     let _ = std::fs::remove_file(&marker);
-                                    eprintln!("shapeforest: exiting now; claimed inputs are taken up at the next start");
-                                    std::process::exit(130);
-                                });
-                            }
+                                    if let Some(tell) = options.on_signal {
+                                        tell(SignalEvent::Again);
+                                    }
+                                }
+                            });
                         }
                         _ = deadline => shutdown.trigger(),
                         _ = shutdown.triggered() => {}
@@ -245,6 +304,7 @@ impl Pipeline {
             interrupted: ctx.shutdown.is_triggered(),
             model_version: live.version(),
             problems: ctx.problems(),
+            summary: ctx.summary(),
         })
     }
 }

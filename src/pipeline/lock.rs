@@ -15,6 +15,8 @@ use std::{
 
 use fs4::{FileExt, TryLockError};
 
+use super::error::Error;
+
 /// An exclusive lock on a data folder, released when dropped (or when the process ends).
 #[derive(Debug)]
 pub struct DataLock {
@@ -31,12 +33,12 @@ impl DataLock {
     /// let d = tempfile::tempdir().unwrap();
     /// let held = DataLock::acquire(d.path()).unwrap();
     /// let e = DataLock::acquire(d.path()).unwrap_err();
-    /// assert!(e.contains(&format!("PID {}", std::process::id())), "{e}");
+    /// assert!(e.to_string().contains(&format!("PID {}", std::process::id())), "{e}");
     /// drop(held);
     /// assert!(DataLock::acquire(d.path()).is_ok());
     /// ```
-    pub fn acquire(root: &Path) -> Result<DataLock, String> {
-        std::fs::create_dir_all(root).map_err(|e| format!("{}: {e}", root.display()))?;
+    pub fn acquire(root: &Path) -> Result<DataLock, Error> {
+        std::fs::create_dir_all(root).map_err(|e| Error::io(root, e))?;
         let path = root.join(".lock");
         let mut file = OpenOptions::new()
             .read(true)
@@ -44,7 +46,7 @@ impl DataLock {
             .create(true)
             .truncate(false)
             .open(&path)
-            .map_err(|e| format!("{}: cannot open the lock file: {e}", path.display()))?;
+            .map_err(|e| Error::Lock(format!("{}: cannot open the lock file: {e}", path.display())))?;
         // Called through the trait: `File` has an inherent `try_lock` on newer toolchains.
         match FileExt::try_lock(&file) {
             Ok(()) => {}
@@ -56,14 +58,16 @@ impl DataLock {
                     Ok(pid) => format!("PID {pid}"),
                     Err(_) => "a process that has not written its PID yet".to_string(),
                 };
-                return Err(format!(
+                return Err(Error::Lock(format!(
                     "the data folder {} is in use by another shapeforest process ({holder}; lock \
                      file {}): stop it first, or give this one its own --data-dir",
                     root.display(),
                     path.display()
-                ));
+                )));
             }
-            Err(TryLockError::Error(e)) => return Err(format!("{}: cannot lock: {e}", path.display())),
+            Err(TryLockError::Error(e)) => {
+                return Err(Error::Lock(format!("{}: cannot lock: {e}", path.display())))
+            }
         }
         let write = (|| {
             file.set_len(0)?;
@@ -71,7 +75,7 @@ impl DataLock {
             writeln!(file, "{}", std::process::id())?;
             file.flush()
         })();
-        write.map_err(|e| format!("{}: cannot write the lock file: {e}", path.display()))?;
+        write.map_err(|e| Error::Lock(format!("{}: cannot write the lock file: {e}", path.display())))?;
         Ok(DataLock { file, path })
     }
 

@@ -157,7 +157,7 @@ impl fmt::Display for Failure {
 }
 
 /// One job on one edge: its identity and the previous stage's output, or its failure.
-#[derive(Debug)]
+#[derive(Clone, Debug)]
 pub struct Envelope<T> {
     /// The job.
     pub job: Job,
@@ -243,6 +243,66 @@ pub struct MatchedShape {
     /// The dense map.
     pub dense: Arc<DenseMap>,
 }
+
+impl SpectralShape {
+    /// The mesh.
+    pub fn mesh(&self) -> &Arc<Mesh> {
+        &self.shape.mesh
+    }
+
+    /// The per-vertex labels, for a labelled shape.
+    pub fn labels(&self) -> Option<&Arc<Vec<Option<u32>>>> {
+        self.shape.labels.as_ref()
+    }
+}
+
+impl PredictedShape {
+    /// The mesh.
+    pub fn mesh(&self) -> &Arc<Mesh> {
+        self.shape.mesh()
+    }
+
+    /// The per-vertex labels, for a labelled shape.
+    pub fn labels(&self) -> Option<&Arc<Vec<Option<u32>>>> {
+        self.shape.labels()
+    }
+
+    /// The spectrum.
+    pub fn spectrum(&self) -> &Arc<Spectrum> {
+        &self.shape.spectrum
+    }
+}
+
+/// Accessors of the payloads that carry a prediction (`m.mesh()` rather than
+/// `m.predicted.shape.shape.mesh`).
+macro_rules! predicted_accessors {
+    ($t:ty) => {
+        impl $t {
+            /// The mesh.
+            pub fn mesh(&self) -> &Arc<Mesh> {
+                self.predicted.mesh()
+            }
+
+            /// The per-vertex labels, for a labelled shape.
+            pub fn labels(&self) -> Option<&Arc<Vec<Option<u32>>>> {
+                self.predicted.labels()
+            }
+
+            /// The model the job is matched with.
+            pub fn model(&self) -> &Arc<ModelState> {
+                &self.predicted.model
+            }
+
+            /// The forest's posterior.
+            pub fn prediction(&self) -> &Arc<Prediction> {
+                &self.predicted.prediction
+            }
+        }
+    };
+}
+
+predicted_accessors!(SparselyMatched);
+predicted_accessors!(MatchedShape);
 
 impl fmt::Debug for DescribedShape {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {

@@ -2,17 +2,25 @@
 //! matcher, functional-map solver, sinks, trainer) connected by bounded, typed flume channels on
 //! a tokio runtime, and the watch-folder daemon built from them.
 //!
+//! - [`message`]: the [`Envelope`] on every edge (job id, source path, payload or failure).
+//! - [`transport`]: the [`Sender`]/[`Receiver`] seam actors are written against, its in-process
+//!   flume implementation, and the fan-out [`Output`] of an actor.
+//! - [`shutdown`]: the [`Shutdown`] flag every actor holds.
 //! - [`actor`]: the [`Source`], [`Stage`] and [`Sink`] traits and their loops; CPU work runs on
 //!   the blocking pool (and rayon), failures travel to the sink as values, panics become
 //!   failures of one job, and per-actor metrics are kept.
-//! - [`message`]: the [`Envelope`] on every edge (job id, source path, payload or failure).
-//! - [`stages`]: the stage types and their settings.
-//! - [`model`]: the live model, swapped atomically by the trainer while predictions go on.
-//! - [`store`]: the daemon's data folder and the claim / commit / recover protocol that makes it
-//!   restart-safe.
+//! - [`stages`]: the stage types, one file per `type` of a pipeline file.
+//! - [`model`]: the live model, swapped atomically by the trainer while predictions go on, and
+//!   loading the newest model that can serve.
+//! - [`store`]: the daemon's data folder, the claim / commit / reject / recover protocol that
+//!   makes it restart-safe, model versions on disk.
+//! - [`report`]: the [`MatchReport`] of a matched scan (shared with `shapeforest match`).
 //! - [`lock`]: the exclusive lock on a data folder (one process at a time).
-//! - [`config`]: `pipelines/*.toml` — parsing, validation naming stage and key, building.
-//! - [`graph`]: [`Pipeline`], for composing actors in code with typed ports.
+//! - [`config`]: `pipelines/*.toml` — the [`StageConfig`] trait and [`Registry`] of stage types,
+//!   parsing, validation naming stage and key, building.
+//! - [`graph`]: [`Pipeline`], for composing actors in code with typed ports (an output may
+//!   feed several consumers).
+//! - [`error`]: the layer's [`enum@Error`].
 //! - [`daemon`]: preparing a data folder (recovery, model loading, the synthetic bootstrap) and
 //!   running a pipeline file on it.
 //!
@@ -21,24 +29,38 @@
 pub mod actor;
 pub mod config;
 pub mod daemon;
+pub mod error;
 pub mod graph;
 pub mod lock;
 pub mod message;
 pub mod model;
+pub mod report;
+pub mod shutdown;
 pub mod stages;
 pub mod store;
+pub mod transport;
 
-pub use actor::{Emitter, PipelineContext, Shutdown, Sink, Source, Stage, StageMetrics, StageSummary};
-pub use config::{build, ConfigError, PipelineSpec, PortType, Settings, StageKind, StageSpec};
+pub use actor::{Emitter, PipelineContext, Sink, Source, Stage, StageMetrics, StageSummary};
+pub use config::{
+    build, parse_config, AnyPort, AnyStageConfig, Builder, ConfigError, PipelineSpec, PortType, Ports,
+    Registry, Settings, StageConfig, StageSpec, StageType,
+};
 pub use daemon::{bootstrap_synthetic, prepare, run_pipeline, run_spec, RunSetup};
-pub use graph::{Pipeline, PipelineReport, Port, RunOptions};
+pub use error::Error;
+pub use graph::{Pipeline, PipelineReport, Port, RunOptions, SignalEvent};
 pub use lock::DataLock;
 pub use message::{
     shape_stem, DescribedShape, Envelope, Failure, FailureKind, InputFile, Job, JobId, LabelSpec,
     MatchedShape, PredictedShape, Shape, SparselyMatched, SpectralShape,
 };
-pub use model::{LiveModel, ModelState, NoModel};
-pub use store::{
-    atomic_write, is_mesh_file, is_transient_file, label_map_text, label_sidecar, latest_manifest,
-    latest_model, move_file, read_labels, unique_path, DataDir, InputKind, ModelManifest, Recovery,
+pub use model::{
+    label_table, load_live_model, load_live_model_for, LiveModel, ModelState, NoModel, ServeNeeds,
 };
+pub use report::{MapQuality, MatchReport};
+pub use shutdown::Shutdown;
+pub use store::{
+    atomic_write, defer, is_claimed, is_mesh_file, is_transient_file, label_map_text, label_sidecar,
+    latest_manifest, latest_model, move_file, natural_key, read_labels, reject, reject_or_defer, unique_path,
+    DataDir, InputKind, ModelManifest, Recovery,
+};
+pub use transport::{InProcess, Output, Payload, Receiver, Sender, Transport};

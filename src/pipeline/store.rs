@@ -30,7 +30,14 @@ use std::{
 
 use serde::{Deserialize, Serialize};
 
-use crate::{forest::RandomForest, limits::Limits};
+use super::{
+    error::Error,
+    message::{Failure, FailureKind, Job},
+};
+use crate::{
+    forest::RandomForest,
+    limits::{escape_name, Limits},
+};
 
 /// The folder layout of a daemon (see the module documentation). Clones share the retry
 /// schedule of inputs whose outputs could not be written ([`DataDir::defer`]).
@@ -315,9 +322,8 @@ pub fn label_sidecar(mesh: &Path) -> Option<PathBuf> {
 /// label of vertex `i`; `-1` or `none` for an unlabelled vertex). The file must be a regular
 /// file (links are not followed) within `limits.max_file_bytes`, and every label below
 /// `limits.max_labels`. Errors name the file and line.
-pub fn read_labels(path: &Path, n_vertices: usize, limits: &Limits) -> Result<Vec<Option<u32>>, String> {
-    let bytes =
-        crate::mesh::read_file_limited(path, limits.max_file_bytes, false).map_err(|e| e.to_string())?;
+pub fn read_labels(path: &Path, n_vertices: usize, limits: &Limits) -> Result<Vec<Option<u32>>, Error> {
+    let bytes = crate::mesh::read_file_limited(path, limits.max_file_bytes, false)?;
     let per_label = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("vts"));
     let max_labels = limits.max_labels.min(u32::MAX as usize);
     let labels = if per_label {
@@ -325,29 +331,33 @@ pub fn read_labels(path: &Path, n_vertices: usize, limits: &Limits) -> Result<Ve
     } else {
         crate::forest::read_label_map(bytes.as_slice(), false, max_labels)
     }
-    .map_err(|e| match e {
-        crate::forest::ForestError::LabelMap { line, reason } if reason.contains("outside the label set") => {
-            format!("{}: line {line}: {reason} (limits.max_labels)", path.display())
-        }
-        e => format!("{}: {e}", path.display()),
+    .map_err(|e| {
+        Error::BadInput(match e {
+            crate::forest::ForestError::LabelMap { line, reason }
+                if reason.contains("outside the label set") =>
+            {
+                format!("{}: line {line}: {reason} (limits.max_labels)", path.display())
+            }
+            e => format!("{}: {e}", path.display()),
+        })
     })?;
     if labels.len() != n_vertices {
-        return Err(format!(
+        return Err(Error::BadInput(format!(
             "{}: {} labels for a mesh of {n_vertices} vertices (one line per vertex expected)",
             path.display(),
             labels.len()
-        ));
+        )));
     }
     let labelled = labels.iter().flatten().count();
     if labelled == 0 {
-        return Err(format!("{}: no vertex has a label", path.display()));
+        return Err(Error::BadInput(format!("{}: no vertex has a label", path.display())));
     }
     if let Some(&top) = labels.iter().flatten().max() {
         if top as usize >= max_labels {
-            return Err(format!(
+            return Err(Error::BadInput(format!(
                 "{}: label {top} is outside the label set of {max_labels} (limits.max_labels)",
                 path.display()
-            ));
+            )));
         }
         if per_label && labelled * 2 < top as usize + 1 {
             tracing::warn!(
@@ -445,13 +455,13 @@ pub fn save_model_version(
     dir: &Path,
     forest: &RandomForest,
     manifest: &ModelManifest,
-) -> Result<PathBuf, String> {
-    fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+) -> Result<PathBuf, Error> {
+    fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let path = dir.join(&manifest.model_file);
-    forest.save(&path).map_err(|e| e.to_string())?;
-    let json = serde_json::to_string_pretty(manifest).map_err(|e| e.to_string())? + "\n";
+    forest.save(&path)?;
+    let json = serde_json::to_string_pretty(manifest)? + "\n";
     let mpath = dir.join(format!("model-v{:06}.json", manifest.version));
-    atomic_write(&mpath, json.as_bytes()).map_err(|e| e.to_string())?;
+    atomic_write(&mpath, json.as_bytes())?;
     Ok(path)
 }
 
@@ -597,4 +607,121 @@ pub fn stored_shapes(dir: &Path) -> Vec<StoredShape> {
             Some(StoredShape { name: super::message::shape_stem(&mesh), mesh, labels })
         })
         .collect()
+}
+
+/// `a2` < `a10`: names compared with their digit runs as numbers.
+pub fn natural_key(name: &str) -> Vec<(String, u64)> {
+    let mut out = Vec::new();
+    let mut text = String::new();
+    let mut chars = name.chars().peekable();
+    while let Some(&c) = chars.peek() {
+        if c.is_ascii_digit() {
+            let mut n = 0u64;
+            while let Some(&d) = chars.peek() {
+                let Some(v) = d.to_digit(10) else { break };
+                n = n.saturating_mul(10).saturating_add(v as u64);
+                chars.next();
+            }
+            out.push((std::mem::take(&mut text), n));
+        } else {
+            text.push(c);
+            chars.next();
+        }
+    }
+    out.push((text, u64::MAX));
+    out
+}
+
+/// Seconds since the Unix epoch.
+pub fn unix_now() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs())
+}
+
+/// Whether a job's input was claimed into the data folder's `.inflight/` (by a watcher).
+pub fn is_claimed(data: &DataDir, job: &Job) -> bool {
+    job.source.as_ref().is_some_and(|s| {
+        s.starts_with(data.inflight(InputKind::Scan)) || s.starts_with(data.inflight(InputKind::Labeled))
+    })
+}
+
+/// Handles a failed job (the rejection every sink shares): an interrupted one is left claimed (it is taken up again at the next
+/// start); any other has its report written to `rejected/NAME.error.json` first, then its
+/// claimed files (input, label map, companions) move to `rejected/` beside it — so an input is
+/// never in `rejected/` without its report. An input named like a report (`*.error.json`)
+/// gets `.input` appended, so that it cannot pass for one. Returns the report's path.
+pub fn reject(data: &DataDir, job: &Job, failure: &Failure) -> Result<Option<PathBuf>, Error> {
+    if failure.kind == FailureKind::Interrupted {
+        tracing::info!(job = job.id, shape = %escape_name(&job.name), "interrupted; the input is taken up again at the next start");
+        return Ok(None);
+    }
+    let dir = data.rejected();
+    fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+    let mut moves = Vec::new();
+    if is_claimed(data, job) {
+        for f in job.files() {
+            if fs::symlink_metadata(f).is_err() {
+                continue;
+            }
+            let mut name = f.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            if name.to_ascii_lowercase().ends_with(".error.json") {
+                name.push_str(".input");
+            }
+            let target = unique_path(&dir, &name);
+            moves.push((f.clone(), target));
+        }
+    }
+    let report = serde_json::json!({
+        "job": job.id,
+        "input": job.arrived_as.clone().unwrap_or_else(|| job.display_source()),
+        "stage": failure.stage,
+        "kind": format!("{:?}", failure.kind),
+        "error": failure.message,
+        "moved_to": moves.iter().map(|m| m.1.display().to_string()).collect::<Vec<_>>(),
+        "rejected_unix": unix_now(),
+    });
+    let path = unique_path(&dir, &format!("{}.error.json", job.name));
+    let text = serde_json::to_string_pretty(&report)? + "\n";
+    atomic_write(&path, text.as_bytes())?;
+    for (from, to) in &moves {
+        move_file(from, to)?;
+    }
+    tracing::warn!(job = job.id, shape = %escape_name(&job.name), report = %path.display(), "rejected: {failure}");
+    Ok(Some(path))
+}
+
+/// [`reject`], and when the report cannot be written (a full disk, a read-only folder) the
+/// input is deferred instead: it goes back to its arrivals folder and is retried after a
+/// back-off. Bad input is never lost because the disk was full.
+pub fn reject_or_defer(data: &DataDir, job: &Job, failure: &Failure) -> Result<(), Error> {
+    match reject(data, job, failure) {
+        Ok(_) => Ok(()),
+        Err(e) => defer(data, job, &format!("cannot write its rejection report: {e}")),
+    }
+}
+
+/// Puts a claimed job's input back into its arrivals folder for a later retry (see
+/// [`DataDir::defer`]), logging the cause. Unclaimed inputs (batch runs read in place) are left
+/// where they are.
+pub fn defer(data: &DataDir, job: &Job, cause: &str) -> Result<(), Error> {
+    let Some(src) = job.source.as_ref().filter(|_| is_claimed(data, job)) else {
+        return Err(Error::BadInput(cause.to_string()));
+    };
+    let kind =
+        if src.starts_with(data.inflight(InputKind::Scan)) { InputKind::Scan } else { InputKind::Labeled };
+    let companions: Vec<PathBuf> = job.labels_file.iter().chain(job.companions.iter()).cloned().collect();
+    match data.defer(kind, src, &companions) {
+        Ok((back, delay)) => {
+            tracing::warn!(
+                job = job.id,
+                shape = %escape_name(&job.name),
+                "{cause}; the input stays queued as {} and is retried in {} s",
+                back.display(),
+                delay.as_secs()
+            );
+            Ok(())
+        }
+        Err(e) => Err(Error::BadInput(format!(
+            "{cause}; and it could not be put back ({e}): it is taken up at the next start"
+        ))),
+    }
 }

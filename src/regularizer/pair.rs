@@ -15,7 +15,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::{forest::Prediction, geodesic::dijkstra_nearest_source, mesh::Mesh, Error};
+use super::RegularizerError as Error;
+use crate::{forest::Prediction, geodesic::dijkstra_nearest_source, mesh::Mesh};
 
 use super::{regularize, DenseMap, PreparedShape, RegularizerParams};
 

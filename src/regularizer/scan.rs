@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use super::normalising_area;
 use crate::{
-    mesh::{extend_map_by_nearest, largest_component, Mesh},
+    mesh::{extend_map_by_nearest, fill_holes, largest_component, Mesh},
     spectral::Spectrum,
 };
 
@@ -38,6 +38,30 @@ impl ScanPart {
         let area = normalising_area(&self.mesh, reference_area);
         let ratio = area / spectrum.area;
         (spectrum.renormalised(area), ratio)
+    }
+
+    /// The mesh the part's spectrum is computed on: the part with its holes of perimeter at
+    /// most `max_perimeter` closed ([`fill_holes`]; its first vertices are the part's), or
+    /// `None` when no hole is that small. A small hole changes every eigenfunction a little
+    /// (the descriptors are global); closed, the surface is nearly the whole body's again.
+    pub fn filled(&self, max_perimeter: f64) -> Option<Arc<Mesh>> {
+        let (mesh, closed) = fill_holes(&self.mesh, max_perimeter);
+        (closed > 0).then(|| Arc::new(mesh))
+    }
+
+    /// The spectrum of the part for matching, from the spectrum of `spectrum_mesh` (the part,
+    /// or its [`ScanPart::filled`] mesh): normalised by [`normalising_area`] of `spectrum_mesh`
+    /// against `reference_area`, restricted to the part's vertices. Returns it with the ratio
+    /// of the area used to the part's own.
+    pub fn spectrum_for_matching(
+        &self,
+        spectrum_mesh: &Mesh,
+        spectrum: Spectrum,
+        reference_area: f64,
+    ) -> (Spectrum, f64) {
+        let area = normalising_area(spectrum_mesh, reference_area);
+        let ratio = area / self.mesh.surface_area();
+        (spectrum.renormalised(area).restricted(self.mesh.n_vertices()), ratio)
     }
 
     /// A map of the part as a map of the whole `scan`.

@@ -23,10 +23,13 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use super::{compute_spectrum, SpectralError, Spectrum, SpectrumParams, SOLVER_VERSION};
-use crate::mesh::{Fnv64, Mesh};
+use crate::mesh::Mesh;
 
 const MAGIC: [u8; 8] = *b"SFSPEC\0\0";
-const HEADER_LEN: usize = 8 + 4 + 4 + 8 + 8 + 8 + 8;
+/// The format's own head in the frame: format and solver versions, mesh hash, K.
+const HEAD_LEN: usize = 4 + 4 + 8 + 8;
+#[cfg(test)]
+const HEADER_LEN: usize = crate::fsutil::frame_prefix_len(HEAD_LEN);
 
 /// Spectra cached as files in one directory.
 ///
@@ -121,55 +124,65 @@ impl SpectrumCache {
     }
 }
 
-fn checksum(payload: &[u8]) -> u64 {
-    let mut h = Fnv64::new();
-    h.write_bytes(payload);
-    h.finish()
+/// The spectrum of `mesh`, through `cache` when there is one ([`SpectrumCache::get_or_compute`])
+/// and computed otherwise: the one "cache or compute" every caller uses.
+///
+/// ```
+/// use shapeforest::{spectral::{spectrum_cached, SpectrumParams}, synth::icosphere};
+/// let s = spectrum_cached(&icosphere(1, 1.0), &SpectrumParams::new(10), None).unwrap();
+/// assert_eq!(s.k(), 10);
+/// ```
+pub fn spectrum_cached(
+    mesh: &Mesh,
+    params: &SpectrumParams,
+    cache: Option<&SpectrumCache>,
+) -> Result<Spectrum, SpectralError> {
+    match cache {
+        Some(c) => c.get_or_compute(mesh, params),
+        None => compute_spectrum(mesh, params),
+    }
 }
 
 fn encode(spectrum: &Spectrum, mesh_hash: u64) -> Result<Vec<u8>, String> {
     let payload = rmp_serde::to_vec(spectrum).map_err(|e| format!("encoding: {e}"))?;
-    let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
-    out.extend_from_slice(&MAGIC);
-    out.extend_from_slice(&SpectrumCache::FORMAT_VERSION.to_le_bytes());
-    out.extend_from_slice(&SOLVER_VERSION.to_le_bytes());
-    out.extend_from_slice(&mesh_hash.to_le_bytes());
-    out.extend_from_slice(&(spectrum.k() as u64).to_le_bytes());
-    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-    out.extend_from_slice(&checksum(&payload).to_le_bytes());
-    out.extend_from_slice(&payload);
-    Ok(out)
+    let mut head = Vec::with_capacity(HEAD_LEN);
+    head.extend_from_slice(&SpectrumCache::FORMAT_VERSION.to_le_bytes());
+    head.extend_from_slice(&SOLVER_VERSION.to_le_bytes());
+    head.extend_from_slice(&mesh_hash.to_le_bytes());
+    head.extend_from_slice(&(spectrum.k() as u64).to_le_bytes());
+    Ok(crate::fsutil::frame(&MAGIC, &head, &payload))
 }
 
 fn decode(bytes: &[u8], mesh_hash: u64, k: usize, n_vertices: usize) -> Result<Spectrum, String> {
-    if bytes.len() < HEADER_LEN {
+    let Some(frame) = crate::fsutil::unframe(bytes, HEAD_LEN) else {
         return Err(format!("truncated header ({} bytes)", bytes.len()));
-    }
-    if bytes[..8] != MAGIC {
+    };
+    if frame.magic != MAGIC {
         return Err("not a shapeforest spectrum file (bad magic)".into());
     }
-    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
-    let u64_at = |o: usize| u64::from_le_bytes(bytes[o..o + 8].try_into().expect("8 bytes"));
-    let format = u32_at(8);
+    let head = frame.head;
+    let u32_at = |o: usize| u32::from_le_bytes(head[o..o + 4].try_into().expect("4 bytes"));
+    let u64_at = |o: usize| u64::from_le_bytes(head[o..o + 8].try_into().expect("8 bytes"));
+    let format = u32_at(0);
     if format != SpectrumCache::FORMAT_VERSION {
         return Err(format!("file format version {format}, expected {}", SpectrumCache::FORMAT_VERSION));
     }
-    let solver = u32_at(12);
+    let solver = u32_at(4);
     if solver != SOLVER_VERSION {
         return Err(format!("written by solver version {solver}, current is {SOLVER_VERSION}"));
     }
-    let (hash, file_k, len, sum) = (u64_at(16), u64_at(24), u64_at(32), u64_at(40));
+    let (hash, file_k, len) = (u64_at(8), u64_at(16), frame.declared_len);
     if hash != mesh_hash {
         return Err(format!("belongs to mesh {hash:016x}, not {mesh_hash:016x}"));
     }
     if file_k != k as u64 {
         return Err(format!("holds k = {file_k}, expected {k}"));
     }
-    let payload = &bytes[HEADER_LEN..];
+    let payload = frame.payload;
     if payload.len() as u64 != len {
         return Err(format!("payload has {} bytes, header says {len} (truncated?)", payload.len()));
     }
-    if checksum(payload) != sum {
+    if !frame.checksum_ok() {
         return Err("payload checksum mismatch (corrupted)".into());
     }
     let s: Spectrum = rmp_serde::from_slice(payload).map_err(|e| format!("decoding: {e}"))?;

@@ -29,7 +29,7 @@ pub mod solver;
 mod spectrum;
 pub mod tufted;
 
-pub use cache::SpectrumCache;
+pub use cache::{spectrum_cached, SpectrumCache};
 pub use dense::dense_spectrum;
 pub use laplacian::{
     cotan_laplacian, cotan_weights, has_non_manifold_edge, surface_operator, vertex_lumped_mass,

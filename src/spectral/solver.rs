@@ -49,7 +49,7 @@ use serde::{Deserialize, Serialize};
 use super::cholesky::{numeric_llt, supernodal_symbolic};
 use super::lanczos::{BlockLanczos, LanczosFailure};
 use super::{surface_operator, LaplacianKind, SpectralError, Spectrum, SurfaceOperator};
-use crate::mesh::Mesh;
+use crate::mesh::{Mesh, UnionFind};
 
 /// Version of the numerical method; part of the spectrum cache key, bump it when results change.
 /// (2: meshes with non-manifold edges use the tufted Laplacian.)
@@ -745,51 +745,6 @@ fn apply_sign_convention(v: &mut [f64]) {
     }
 }
 
-/// Union–find with path halving, labelling components by their smallest member.
-struct UnionFind {
-    parent: Vec<usize>,
-}
-
-impl UnionFind {
-    fn new(n: usize) -> Self {
-        Self { parent: (0..n).collect() }
-    }
-
-    fn find(&mut self, mut x: usize) -> usize {
-        while self.parent[x] != x {
-            self.parent[x] = self.parent[self.parent[x]];
-            x = self.parent[x];
-        }
-        x
-    }
-
-    fn union(&mut self, a: usize, b: usize) {
-        let (ra, rb) = (self.find(a), self.find(b));
-        if ra != rb {
-            // The smaller index becomes the root: roots are the smallest members.
-            let (lo, hi) = (ra.min(rb), ra.max(rb));
-            self.parent[hi] = lo;
-        }
-    }
-
-    /// Component label per element, labels `0..count` in order of smallest member.
-    fn labels(&mut self) -> (Vec<usize>, usize) {
-        let n = self.parent.len();
-        let mut label = vec![usize::MAX; n];
-        let mut out = Vec::with_capacity(n);
-        let mut count = 0;
-        for i in 0..n {
-            let r = self.find(i);
-            if label[r] == usize::MAX {
-                label[r] = count;
-                count += 1;
-            }
-            out.push(label[r]);
-        }
-        (out, count)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -804,16 +759,6 @@ mod tests {
         let mut w = vec![0.0, -0.5, 0.5, 0.2];
         apply_sign_convention(&mut w);
         assert_eq!(w, vec![0.0, 0.5, -0.5, -0.2]);
-    }
-
-    #[test]
-    fn union_find_labels_by_smallest_member() {
-        let mut uf = UnionFind::new(5);
-        uf.union(4, 1);
-        uf.union(3, 2);
-        let (labels, count) = uf.labels();
-        assert_eq!(count, 3);
-        assert_eq!(labels, vec![0, 1, 2, 2, 1]);
     }
 
     #[test]

@@ -53,4 +53,22 @@ impl Spectrum {
             area: if r == 1.0 { self.area } else { area },
         }
     }
+
+    /// The eigenpairs restricted to the first `n` vertices (rows): the spectrum of a mesh with
+    /// vertices appended (holes closed, see [`crate::mesh::fill_holes`]) read on the original
+    /// vertices. The eigenvalues and the area are unchanged.
+    pub fn restricted(&self, n: usize) -> Spectrum {
+        let n = n.min(self.n_vertices);
+        let mut eigenvectors = Vec::with_capacity(n * self.k());
+        for j in 0..self.k() {
+            eigenvectors.extend_from_slice(&self.phi(j)[..n]);
+        }
+        Spectrum {
+            eigenvalues: self.eigenvalues.clone(),
+            eigenvectors,
+            n_vertices: n,
+            mass: self.mass[..n].to_vec(),
+            area: self.area,
+        }
+    }
 }

@@ -316,22 +316,12 @@ pub(crate) fn check_closed_sphere(n_vertices: usize, faces: &[[usize; 3]]) -> Re
         }
     }
     // Connectivity.
-    let mut parent: Vec<usize> = (0..n_vertices).collect();
-    fn find(parent: &mut [usize], mut x: usize) -> usize {
-        while parent[x] != x {
-            parent[x] = parent[parent[x]];
-            x = parent[x];
-        }
-        x
-    }
+    let mut uf = crate::mesh::UnionFind::new(n_vertices);
     for f in faces {
-        for e in 0..3 {
-            let (a, b) = (find(&mut parent, f[e]), find(&mut parent, f[(e + 1) % 3]));
-            parent[a] = b;
-        }
+        uf.union(f[0], f[1]);
+        uf.union(f[0], f[2]);
     }
-    let root = find(&mut parent, 0);
-    if (0..n_vertices).any(|v| find(&mut parent, v) != root) {
+    if uf.labels().1 > 1 {
         return Err("surface has several connected components".to_string());
     }
     let euler = n_vertices as i64 - (directed.len() / 2) as i64 + faces.len() as i64;

@@ -16,19 +16,13 @@ use shapeforest::{
 };
 
 pub const VERTICES: usize = 1500;
-/// How long a test waits for something to happen (`SHAPEFOREST_TEST_timeout()_S`, default 240).
+/// How long a test waits for something to happen (`SHAPEFOREST_TEST_TIMEOUT_S`, default 240).
 pub fn timeout() -> Duration {
-    let s = std::env::var("SHAPEFOREST_TEST_timeout()_S").ok().and_then(|s| s.parse().ok()).unwrap_or(240);
+    let s = std::env::var("SHAPEFOREST_TEST_TIMEOUT_S").ok().and_then(|s| s.parse().ok()).unwrap_or(240);
     Duration::from_secs(s)
 }
 
-/// The binary under test (`SHAPEFOREST_TEST_BIN` runs the suite against another build, e.g. to
-/// check that a test fails without a fix).
-pub fn bin() -> PathBuf {
-    std::env::var_os("SHAPEFOREST_TEST_BIN")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_shapeforest")))
-}
+pub use super::bin_path as bin;
 
 pub fn family(n: usize) -> ShapeFamily {
     creature_family(&CreatureParams { target_vertices: VERTICES, seed: 1, ..Default::default() }, n).unwrap()

@@ -9,10 +9,29 @@ use crate::{
     mesh::read_mesh_limited,
     pipeline::{
         actor::Stage,
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
+        error::Error,
         message::{Failure, InputFile, Job, LabelSpec, Shape},
         store::read_labels,
     },
 };
+
+impl StageConfig for IngestConfig {
+    const TYPE: StageType = StageType {
+        name: "ingest",
+        ports: (Some(PortType::File), Some(PortType::Shape)),
+        parse: parse_config::<IngestConfig>,
+    };
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
+        let Some(AnyPort::File(i)) = input else { return Err(b.wrong_input()) };
+        // Files dropped into a watched folder: links are not followed.
+        let watched = b.upstream::<super::WatchConfig>().is_some();
+        let stage =
+            IngestStage::new(self.clone()).with_limits(b.spec.settings.limits).follow_symlinks(!watched);
+        let name = b.stage.name.clone();
+        Ok(Some(AnyPort::Shape(b.pipeline.stage(&name, i, stage))))
+    }
+}
 
 /// Settings of `ingest`.
 #[derive(Clone, Debug, Deserialize)]
@@ -96,7 +115,9 @@ impl Stage for IngestStage {
         let labels = match &input.labels {
             None => None,
             Some(LabelSpec::Identity) => Some(Arc::new(labels_identity(n))),
-            Some(LabelSpec::File(f)) => Some(Arc::new(read_labels(f, n, &self.limits).map_err(bad)?)),
+            Some(LabelSpec::File(f)) => {
+                Some(Arc::new(read_labels(f, n, &self.limits).map_err(|e| bad(e.to_string()))?))
+            }
         };
         Ok(Shape { mesh: Arc::new(mesh), labels })
     }

@@ -8,10 +8,26 @@ use serde::Deserialize;
 use crate::{
     pipeline::{
         actor::Stage,
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
+        error::Error,
         message::{Failure, Job, Shape, SpectralShape},
     },
-    spectral::{compute_spectrum, SpectrumCache, SpectrumParams},
+    spectral::{spectrum_cached, SpectrumCache, SpectrumParams},
 };
+
+impl StageConfig for SpectralConfig {
+    const TYPE: StageType = StageType {
+        name: "spectral",
+        ports: (Some(PortType::Shape), Some(PortType::Spectrum)),
+        parse: parse_config::<SpectralConfig>,
+    };
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
+        let Some(AnyPort::Shape(i)) = input else { return Err(b.wrong_input()) };
+        let stage = SpectralStage::new(self, Some(b.data.cache())).map_err(|e| b.error(e))?;
+        let name = b.stage.name.clone();
+        Ok(Some(AnyPort::Spectrum(b.pipeline.stage(&name, i, stage))))
+    }
+}
 
 /// Settings of `spectral`.
 #[derive(Clone, Debug, Deserialize)]
@@ -46,11 +62,11 @@ pub struct SpectralStage {
 
 impl SpectralStage {
     /// A spectral stage; `cache_dir` is used when given.
-    pub fn new(config: &SpectralConfig, cache_dir: Option<PathBuf>) -> Result<Self, String> {
+    pub fn new(config: &SpectralConfig, cache_dir: Option<PathBuf>) -> Result<Self, Error> {
         let params = SpectrumParams::new(config.k);
-        params.check().map_err(|e| e.to_string())?;
+        params.check()?;
         let cache = match cache_dir {
-            Some(d) if config.cache => Some(SpectrumCache::new(d).map_err(|e| e.to_string())?),
+            Some(d) if config.cache => Some(SpectrumCache::new(d)?),
             _ => None,
         };
         Ok(Self { params, cache })
@@ -62,12 +78,8 @@ impl Stage for SpectralStage {
     type Out = SpectralShape;
 
     fn process(&mut self, job: &mut Job, shape: Shape) -> Result<SpectralShape, Failure> {
-        let r = match &self.cache {
-            Some(c) => c.get_or_compute(&shape.mesh, &self.params),
-            None => compute_spectrum(&shape.mesh, &self.params),
-        };
-        let spectrum =
-            r.map_err(|e| Failure::bad_input("spectral", format!("{}: {e}", job.display_source())))?;
+        let spectrum = spectrum_cached(&shape.mesh, &self.params, self.cache.as_ref())
+            .map_err(|e| Failure::bad_input("spectral", format!("{}: {e}", job.display_source())))?;
         Ok(SpectralShape { shape, spectrum: Arc::new(spectrum) })
     }
 }

@@ -23,18 +23,45 @@ use crate::{
     mesh::{read_mesh_limited, write_mesh, Mesh},
     pipeline::{
         actor::Sink,
-        message::{shape_stem, Failure, Job, SpectralShape},
-        model::{LiveModel, ModelState},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
+        error::{Error, IoAt},
+        message::{shape_stem, Failure, Job, Shape, SpectralShape},
+        model::{load_stored, LiveModel, ModelState},
+        shutdown::Shutdown,
         store::{
-            atomic_write, label_map_text, latest_manifest, move_file, newest_model_that, prune_models,
-            read_labels, save_model_version, stored_shapes, DataDir, ModelManifest,
+            atomic_write, defer, is_claimed, label_map_text, latest_manifest, move_file, natural_key,
+            prune_models, read_labels, reject_or_defer, save_model_version, stored_shapes, unix_now, DataDir,
+            InputKind, ModelManifest,
         },
     },
     regularizer::PreparedShape,
-    spectral::{compute_spectrum, Spectrum, SpectrumCache, SpectrumParams},
+    spectral::{SpectrumCache, SpectrumParams},
 };
 
-use super::sink::{defer, is_claimed, reject_or_defer, unix_now};
+impl StageConfig for TrainerConfig {
+    const TYPE: StageType = StageType {
+        name: "trainer",
+        ports: (Some(PortType::Spectrum), None),
+        parse: parse_config::<TrainerConfig>,
+    };
+    fn check(&self) -> Result<(), String> {
+        self.forest_params().map(|_| ())
+    }
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
+        let Some(AnyPort::Spectrum(i)) = input else { return Err(b.wrong_input()) };
+        let upstream_k = b.upstream::<super::SpectralConfig>().map(|c| c.k);
+        let mut t = TrainerSink::new(b.data.clone(), self.clone(), b.heat, b.live.clone())
+            .map_err(|e| b.error(e))?
+            .with_shutdown(b.pipeline.context().shutdown.clone())
+            .with_limits(b.spec.settings.limits);
+        if let Some(k) = upstream_k {
+            t = t.with_spectrum_k(k);
+        }
+        let name = b.stage.name.clone();
+        b.pipeline.sink(&name, i, t);
+        Ok(None)
+    }
+}
 
 /// When the trainer updates the model.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
@@ -144,33 +171,6 @@ impl TrainerConfig {
     }
 }
 
-/// The reference table of a labelled shape: `table[label]` = the first vertex carrying it, or
-/// the labels no vertex carries.
-///
-/// ```
-/// use shapeforest::pipeline::stages::label_table;
-/// assert_eq!(label_table(&[Some(1), Some(0), None], 2), Ok(vec![1, 0]));
-/// assert_eq!(label_table(&[Some(1), None], 3), Err(vec![0, 2]));
-/// ```
-pub fn label_table(labels: &[Option<u32>], n_labels: usize) -> Result<Vec<usize>, Vec<usize>> {
-    let mut table = vec![usize::MAX; n_labels];
-    for (v, l) in labels.iter().enumerate() {
-        if let Some(l) = l {
-            if let Some(slot) = table.get_mut(*l as usize) {
-                if *slot == usize::MAX {
-                    *slot = v;
-                }
-            }
-        }
-    }
-    let missing: Vec<usize> = (0..n_labels).filter(|&l| table[l] == usize::MAX).collect();
-    if missing.is_empty() {
-        Ok(table)
-    } else {
-        Err(missing)
-    }
-}
-
 /// The per-label rows of a job's `.vts` label file (`None` for other label files, or when it
 /// cannot be read again: the per-vertex labels read at ingest are then all there is).
 fn label_rows(job: &Job, n_vertices: usize) -> Option<Vec<Option<u32>>> {
@@ -180,121 +180,6 @@ fn label_rows(job: &Job, n_vertices: usize) -> Option<Vec<Option<u32>>> {
     }
     let file = fs::File::open(path).ok()?;
     crate::forest::read_per_label_rows(std::io::BufReader::new(file), true, n_vertices).ok()
-}
-
-/// A stored training shape read back: mesh, labels, spectrum.
-type StoredParts = (Arc<Mesh>, Vec<Option<u32>>, Spectrum);
-
-/// Reads a stored training shape back.
-fn load_stored(
-    dir: &Path,
-    name: &str,
-    params: &SpectrumParams,
-    cache: Option<&SpectrumCache>,
-    limits: &crate::limits::Limits,
-) -> Result<StoredParts, String> {
-    let stored = stored_shapes(dir)
-        .into_iter()
-        .find(|s| s.name == name)
-        .ok_or_else(|| format!("training shape `{name}` is missing from {}", dir.display()))?;
-    let (mesh, _) = read_mesh_limited(&stored.mesh, limits, false).map_err(|e| e.to_string())?;
-    let labels = read_labels(&stored.labels, mesh.n_vertices(), limits)?;
-    let spectrum = match cache {
-        Some(c) => c.get_or_compute(&mesh, params),
-        None => compute_spectrum(&mesh, params),
-    }
-    .map_err(|e| format!("{}: {e}", stored.mesh.display()))?;
-    Ok((Arc::new(mesh), labels, spectrum))
-}
-
-/// Reads the newest model of a data folder that loads, with its reference shape, ready to
-/// serve; `Ok(None)` when there is none. Unreadable versions are skipped with a warning.
-pub fn load_live_model(data: &DataDir, heat: HeatParams) -> Result<Option<ModelState>, String> {
-    load_live_model_for(data, heat, &ServeNeeds::default())
-}
-
-/// What a pipeline needs of a model to serve with it.
-#[derive(Clone, Debug, Default)]
-pub struct ServeNeeds {
-    /// Limits every dimension of the model must respect.
-    pub limits: crate::limits::Limits,
-    /// Eigenpairs of the scans' spectra (the model's K must not exceed it).
-    pub spectrum_k: Option<usize>,
-    /// Versions not to use (quarantined after crashing the daemon).
-    pub skip_versions: Vec<u64>,
-}
-
-/// Why a decoded model cannot serve a pipeline with `needs` (before its reference is read).
-fn check_serves(manifest: &ModelManifest, forest: &RandomForest, needs: &ServeNeeds) -> Result<(), String> {
-    if needs.skip_versions.contains(&manifest.version) {
-        return Err("quarantined: it was in use when the daemon crashed twice".into());
-    }
-    if let Some(k) = needs.spectrum_k {
-        if forest.k() > k {
-            return Err(format!(
-                "it uses K = {} eigenpairs, but this pipeline computes spectra with k = {k}",
-                forest.k()
-            ));
-        }
-    }
-    if manifest.n_labels != forest.n_labels() || manifest.k != forest.k() {
-        return Err(format!(
-            "its manifest says {} labels and K = {}, the model file {} and {}",
-            manifest.n_labels,
-            manifest.k,
-            forest.n_labels(),
-            forest.k()
-        ));
-    }
-    Ok(())
-}
-
-/// [`load_live_model`] for a pipeline with `needs`: the newest version that loads within the
-/// limits and can serve (K no larger than the pipeline's spectra, a reference that carries
-/// every label) is used; each newer one skipped is logged with the reason.
-pub fn load_live_model_for(
-    data: &DataDir,
-    heat: HeatParams,
-    needs: &ServeNeeds,
-) -> Result<Option<ModelState>, String> {
-    let cache = SpectrumCache::new(data.cache()).ok();
-    let (found, problems) = newest_model_that(&data.models(), &needs.limits, |manifest, forest| {
-        check_serves(&manifest, &forest, needs)?;
-        let params = SpectrumParams::new(forest.k());
-        let (mesh, labels, spectrum) =
-            load_stored(&data.training(), &manifest.reference, &params, cache.as_ref(), &needs.limits)
-                .map_err(|e| format!("reference: {e}"))?;
-        // The model's own table (format version 2) for its reference; older models had
-        // references that carry every label.
-        let table = match forest.reference().and_then(|r| r.table_for(&mesh)) {
-            Some(t) => t,
-            None => label_table(&labels, forest.n_labels()).map_err(|missing| {
-                format!(
-                    "its reference `{}` lacks {} of its {} labels",
-                    manifest.reference,
-                    missing.len(),
-                    forest.n_labels()
-                )
-            })?,
-        };
-        let reference = PreparedShape::new(mesh, Arc::new(spectrum), heat).map_err(|e| e.to_string())?;
-        Ok(ModelState {
-            version: manifest.version,
-            forest: Arc::new(forest),
-            reference_name: manifest.reference,
-            reference: Arc::new(reference),
-            label_to_vertex: Arc::new(table),
-            training_shapes: manifest.training_shapes,
-        })
-    });
-    let fallback = found.is_some() && !problems.is_empty();
-    for p in problems {
-        tracing::warn!("skipping a model version: {p}");
-    }
-    if let (true, Some(m)) = (fallback, &found) {
-        tracing::warn!("falling back to model v{}, the newest that can serve", m.version);
-    }
-    Ok(found)
 }
 
 /// A reference chosen for a first model: name, prepared shape, label → vertex table.
@@ -317,7 +202,7 @@ pub struct TrainerSink {
     /// Eigenpairs of the spectra it receives (for shapes it reads back from `training/`).
     spectrum_k: usize,
     /// The pipeline's shutdown flag: at shutdown, waiting scans are left queued, not rejected.
-    shutdown: Option<crate::pipeline::actor::Shutdown>,
+    shutdown: Option<Shutdown>,
     /// Limits on label maps read back from `training/`.
     limits: crate::limits::Limits,
 }
@@ -329,8 +214,8 @@ impl TrainerSink {
         config: TrainerConfig,
         heat: HeatParams,
         live: Arc<LiveModel>,
-    ) -> Result<Self, String> {
-        let params = config.forest_params()?;
+    ) -> Result<Self, Error> {
+        let params = config.forest_params().map_err(Error::Training)?;
         let cache = SpectrumCache::new(data.cache()).ok();
         Ok(Self {
             data,
@@ -357,7 +242,7 @@ impl TrainerSink {
 
     /// The pipeline's shutdown flag: a trainer stopped by it does not tell waiting scans that no
     /// model will come (they stay queued for the next start).
-    pub fn with_shutdown(mut self, shutdown: crate::pipeline::actor::Shutdown) -> Self {
+    pub fn with_shutdown(mut self, shutdown: Shutdown) -> Self {
         self.shutdown = Some(shutdown);
         self
     }
@@ -399,15 +284,18 @@ impl TrainerSink {
     }
 
     /// Stores a pending shape in `training/` (moves a claimed input, writes anything else).
-    fn store(&self, job: &Job, shape: &SpectralShape) -> Result<(), String> {
+    fn store(&self, job: &Job, shape: &SpectralShape) -> Result<(), Error> {
         let dir = self.data.training();
-        fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        fs::create_dir_all(&dir).at(&dir)?;
         if job.source.as_ref().is_some_and(|s| s.starts_with(&dir)) {
             return Ok(()); // already stored
         }
         // Never replace a stored shape (see `same_name_as_stored`, checked before this).
         if let Some(old) = stored_shapes(&dir).into_iter().find(|s| s.name == job.name) {
-            return Err(format!("{}: a training shape of this name is already stored", old.mesh.display()));
+            return Err(Error::BadInput(format!(
+                "{}: a training shape of this name is already stored",
+                old.mesh.display()
+            )));
         }
         match (&job.source, &job.labels_file) {
             (Some(src), Some(lab)) if is_claimed(&self.data, job) => {
@@ -415,20 +303,19 @@ impl TrainerSink {
                     |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
                 let mesh_name = name(src).replacen(&shape_stem(src), &job.name, 1);
                 let lab_ext = lab.extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or_default();
-                move_file(lab, &dir.join(format!("{}.{lab_ext}", job.name))).map_err(|e| e.to_string())?;
+                move_file(lab, &dir.join(format!("{}.{lab_ext}", job.name)))?;
                 for c in &job.companions {
                     let n = name(c).replacen(&shape_stem(c), &job.name, 1);
-                    move_file(c, &dir.join(n)).map_err(|e| e.to_string())?;
+                    move_file(c, &dir.join(n))?;
                 }
-                move_file(src, &dir.join(mesh_name)).map_err(|e| e.to_string())?;
+                move_file(src, &dir.join(mesh_name))?;
             }
             _ => {
                 let labels = shape.shape.labels.as_deref().map(Vec::as_slice).unwrap_or(&[]);
                 let text = label_map_text(labels);
                 let lab = dir.join(format!("{}.labels", job.name));
-                atomic_write(&lab, text.as_bytes()).map_err(|e| e.to_string())?;
-                write_mesh(dir.join(format!("{}.off", job.name)), &shape.shape.mesh)
-                    .map_err(|e| e.to_string())?;
+                atomic_write(&lab, text.as_bytes())?;
+                write_mesh(dir.join(format!("{}.off", job.name)), &shape.shape.mesh)?;
                 // A claimed input without a label file (identity labels) is consumed.
                 if is_claimed(&self.data, job) {
                     if let Some(src) = &job.source {
@@ -441,7 +328,7 @@ impl TrainerSink {
     }
 
     /// Loads the stored shapes the current model has learnt (once).
-    fn load_known(&mut self, k: usize) -> Result<(), String> {
+    fn load_known(&mut self, k: usize) -> Result<(), Error> {
         let Some(model) = self.live.current() else { return Ok(()) };
         let params = SpectrumParams::new(k);
         for name in &model.training_shapes {
@@ -516,7 +403,7 @@ impl TrainerSink {
     }
 
     /// One model update with the pending shapes.
-    fn update(&mut self) -> Result<(), String> {
+    fn update(&mut self) -> Result<(), Error> {
         if self.pending.is_empty() {
             return Ok(());
         }
@@ -611,7 +498,7 @@ impl TrainerSink {
             match self.store(&a.0, &a.1) {
                 Ok(()) => {
                     if let Some(n) = &a.0.arrived_as {
-                        self.data.clear_deferral(crate::pipeline::store::InputKind::Labeled, n);
+                        self.data.clear_deferral(InputKind::Labeled, n);
                     }
                     stored.push(a);
                 }
@@ -624,16 +511,16 @@ impl TrainerSink {
         }
         let mut shapes: Vec<TrainingShape> = self.known.values().cloned().collect();
         shapes.extend(accepted.iter().map(|a| a.2.clone()));
-        shapes.sort_by_key(|a| super::source::natural_key(&a.name));
-        let set = TrainingSet::new(shapes, n_labels).map_err(|e| e.to_string())?;
+        shapes.sort_by_key(|a| natural_key(&a.name));
+        let set = TrainingSet::new(shapes, n_labels)?;
         let mut forest = self
             .params
             .fit_with(current.as_ref().map(|m| m.forest.as_ref()), &set)
-            .map_err(|e| format!("training failed: {e}"))?;
+            .map_err(|e| Error::Training(e.to_string()))?;
         if forest.reference().is_none() {
             let table = crate::forest::LabelTable { table: table.to_vec(), exact: 0, filled: 0, unused: 0 };
             let r = ModelReference::new(&reference_name, &reference.mesh, &table);
-            forest = forest.with_reference(r).map_err(|e| e.to_string())?;
+            forest = forest.with_reference(r)?;
         }
         let on_disk = latest_manifest(&self.data.models()).map_or(0, |m| m.version);
         let version = current.as_ref().map_or(0, |m| m.version).max(on_disk) + 1;
@@ -676,7 +563,7 @@ impl TrainerSink {
 impl Sink for TrainerSink {
     type In = SpectralShape;
 
-    fn start(&mut self) -> Result<(), String> {
+    fn start(&mut self) -> Result<(), Error> {
         // Stored shapes the newest model has not learnt (a crash before its save, or during the
         // first training, before any model existed): learn them now.
         let model = self.live.current();
@@ -701,7 +588,7 @@ impl Sink for TrainerSink {
                 Ok((mesh, labels, spectrum)) => {
                     let mut job = Job::generated(0, &s.name);
                     job.source = Some(s.mesh.clone());
-                    let shape = crate::pipeline::message::Shape { mesh, labels: Some(Arc::new(labels)) };
+                    let shape = Shape { mesh, labels: Some(Arc::new(labels)) };
                     self.pending.push((job, SpectralShape { shape, spectrum: Arc::new(spectrum) }));
                 }
                 Err(e) => tracing::warn!(shape = %s.name, "cannot read a stored training shape: {e}"),
@@ -710,7 +597,7 @@ impl Sink for TrainerSink {
         self.update()
     }
 
-    fn consume(&mut self, job: Job, body: Result<SpectralShape, Failure>) -> Result<(), String> {
+    fn consume(&mut self, job: Job, body: Result<SpectralShape, Failure>) -> Result<(), Error> {
         match body {
             Err(f) => reject_or_defer(&self.data, &job, &f),
             Ok(shape) if shape.shape.labels.is_none() => reject_or_defer(
@@ -728,7 +615,7 @@ impl Sink for TrainerSink {
         }
     }
 
-    fn idle(&mut self) -> Result<(), String> {
+    fn idle(&mut self) -> Result<(), Error> {
         let quiet = std::time::Duration::from_millis(self.config.quiet_ms);
         match self.config.mode {
             TrainMode::Incremental if self.last_arrival.elapsed() >= quiet => self.update(),
@@ -743,7 +630,7 @@ impl Sink for TrainerSink {
         }
     }
 
-    fn finish(&mut self) -> Result<(), String> {
+    fn finish(&mut self) -> Result<(), Error> {
         let r = self.update();
         // At a shutdown, scans waiting for a model stay queued (they see the shutdown); only a
         // pipeline that ran out of input learns that no model will come.

@@ -11,13 +11,30 @@ use serde::Deserialize;
 use crate::{
     eval::{cumulative_curve, geodesic_errors, plot_curves_svg, write_curves_csv, CurveSeries, ErrorSummary},
     pipeline::{
-        actor::Sink,
+        actor::{PipelineContext, Sink},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
+        error::{Error, IoAt},
         message::{Failure, Job, MatchedShape},
-        store::DataDir,
+        store::{reject, DataDir},
     },
 };
 
-use super::sink::reject;
+impl StageConfig for EvalSinkConfig {
+    const TYPE: StageType = StageType {
+        name: "eval-sink",
+        ports: (Some(PortType::Map), None),
+        parse: parse_config::<EvalSinkConfig>,
+    };
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
+        let Some(AnyPort::Map(i)) = input else { return Err(b.wrong_input()) };
+        let mut c = self.clone();
+        c.folder = b.resolve(&c.folder);
+        let name = b.stage.name.clone();
+        let sink = EvalSink::new(b.data.clone(), c).with_context(b.pipeline.context().clone());
+        b.pipeline.sink(&name, i, sink);
+        Ok(None)
+    }
+}
 
 /// Settings of `eval-sink`.
 #[derive(Clone, Debug, Deserialize)]
@@ -55,17 +72,25 @@ pub struct EvalSink {
     config: EvalSinkConfig,
     scores: Vec<ShapeScore>,
     failures: usize,
+    ctx: Option<PipelineContext>,
 }
 
 impl EvalSink {
     /// An evaluation sink writing into `config.folder` (already resolved).
     pub fn new(data: DataDir, config: EvalSinkConfig) -> Self {
-        Self { data, config, scores: Vec::new(), failures: 0 }
+        Self { data, config, scores: Vec::new(), failures: 0, ctx: None }
+    }
+
+    /// Puts the summary (shapes scored, the table) into the pipeline's report
+    /// ([`crate::pipeline::PipelineReport::summary`]) when it finishes.
+    pub fn with_context(mut self, ctx: PipelineContext) -> Self {
+        self.ctx = Some(ctx);
+        self
     }
 
     fn score(&self, job: &Job, m: &MatchedShape) -> Result<ShapeScore, String> {
-        let labels = m.predicted.shape.shape.labels.as_ref().ok_or("the shape has no ground-truth labels")?;
-        let model = &m.predicted.model;
+        let labels = m.labels().ok_or("the shape has no ground-truth labels")?;
+        let model = m.model();
         let n = labels.len();
         let step = (n / self.config.points.max(1)).max(1);
         let (mut evaluated, mut targets) = (Vec::new(), Vec::new());
@@ -130,7 +155,7 @@ fn methods() -> [(&'static str, Pick); 2] {
 impl Sink for EvalSink {
     type In = MatchedShape;
 
-    fn consume(&mut self, job: Job, body: Result<MatchedShape, Failure>) -> Result<(), String> {
+    fn consume(&mut self, job: Job, body: Result<MatchedShape, Failure>) -> Result<(), Error> {
         let r = match body {
             Ok(m) => self.score(&job, &m).map_err(|e| Failure::bad_input("eval-sink", e)),
             Err(f) => Err(f),
@@ -147,12 +172,12 @@ impl Sink for EvalSink {
         }
     }
 
-    fn finish(&mut self) -> Result<(), String> {
+    fn finish(&mut self) -> Result<(), Error> {
         if self.scores.is_empty() {
-            return Err(format!("no shape was scored ({} failed)", self.failures));
+            return Err(Error::BadInput(format!("no shape was scored ({} failed)", self.failures)));
         }
         let dir = &self.config.folder;
-        fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        fs::create_dir_all(dir).at(dir)?;
         let mut csv = String::from("shape,method,n,within_0.05,within_0.10,mean\n");
         for s in &self.scores {
             for (method, pick) in methods() {
@@ -165,7 +190,7 @@ impl Sink for EvalSink {
             }
         }
         let csv_path = dir.join("eval.csv");
-        fs::write(&csv_path, csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+        fs::write(&csv_path, csv).at(&csv_path)?;
         let series: Vec<CurveSeries> = methods()
             .iter()
             .map(|(method, pick)| {
@@ -173,16 +198,19 @@ impl Sink for EvalSink {
                 CurveSeries { name: method.to_string(), curve: cumulative_curve(&all, 100) }
             })
             .collect();
-        write_curves_csv(&dir.join("curves.csv"), &series).map_err(|e| e.to_string())?;
-        plot_curves_svg(&dir.join("curves.svg"), "shapeforest pipeline evaluation", &series)
-            .map_err(|e| e.to_string())?;
-        println!(
-            "evaluation of {} shapes ({} failed); outputs in {}",
+        write_curves_csv(&dir.join("curves.csv"), &series)?;
+        plot_curves_svg(&dir.join("curves.svg"), "shapeforest pipeline evaluation", &series)?;
+        let summary = format!(
+            "evaluation of {} shapes ({} failed); outputs in {}\n{}",
             self.scores.len(),
             self.failures,
-            dir.display()
+            dir.display(),
+            self.table()
         );
-        print!("{}", self.table());
+        tracing::info!("{summary}");
+        if let Some(ctx) = &self.ctx {
+            ctx.add_summary(summary);
+        }
         Ok(())
     }
 }

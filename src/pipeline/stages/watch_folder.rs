@@ -1,163 +1,47 @@
-//! Sources: a folder listed once (`folder`), a watched folder (`watch-folder`, the daemon's
-//! input) and the built-in synthetic class (`synthetic`).
+//! `watch-folder`: the daemon's input. Watches `incoming/` (scans) or `labeled/` (labelled
+//! shapes) of the data folder and claims each complete file into `.inflight/`.
 
 use std::{
     collections::HashMap,
     fs,
     path::{Path, PathBuf},
-    sync::Arc,
-    time::{Duration, Instant, SystemTime},
+    time::{Duration, SystemTime},
 };
 
 use serde::Deserialize;
+// tokio's clock (the system clock outside tests): the settle logic can be tested with a paused
+// clock.
+use tokio::time::Instant;
 
 use crate::{
-    forest::labels_identity,
     limits::escape_name,
     pipeline::{
         actor::{Emitter, Source},
-        message::{shape_stem, Envelope, Failure, InputFile, Job, Shape},
+        config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
+        error::{Error, IoAt},
+        message::{shape_stem, Envelope, Failure, InputFile, Job, LabelSpec},
         store::{
             is_mesh_file, is_transient_file, label_sidecar, move_file, read_dir_sorted, unique_path, DataDir,
             InputKind,
         },
     },
-    synth::{creature_family, CreatureParams},
 };
 
-/// How a folder source finds the labels of its shapes.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Labels {
-    /// Scans: no labels.
-    #[default]
-    None,
-    /// A sidecar per mesh: `NAME.labels` (per vertex) or `NAME.vts` (per label, 1-based).
-    Sidecar,
-    /// Label = vertex index (classes sharing one vertex indexing, e.g. TOSCA, SCAPE).
-    Identity,
-}
-
-/// Settings of a `folder` source.
-#[derive(Clone, Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FolderConfig {
-    /// The folder (relative paths are taken from the pipeline's data folder).
-    pub folder: PathBuf,
-    /// Only meshes whose name starts with this.
-    #[serde(default)]
-    pub prefix: Option<String>,
-    /// Only these shapes (file stems), in this order.
-    #[serde(default)]
-    pub names: Option<Vec<String>>,
-    /// Skip this many meshes (after sorting by name, numbers in names compared as numbers).
-    #[serde(default)]
-    pub skip: usize,
-    /// At most this many meshes.
-    #[serde(default)]
-    pub take: Option<usize>,
-    /// Where the labels come from.
-    #[serde(default)]
-    pub labels: Labels,
-}
-
-/// `a2` < `a10`: names compared with their digit runs as numbers.
-pub fn natural_key(name: &str) -> Vec<(String, u64)> {
-    let mut out = Vec::new();
-    let mut text = String::new();
-    let mut chars = name.chars().peekable();
-    while let Some(&c) = chars.peek() {
-        if c.is_ascii_digit() {
-            let mut n = 0u64;
-            while let Some(&d) = chars.peek() {
-                let Some(v) = d.to_digit(10) else { break };
-                n = n.saturating_mul(10).saturating_add(v as u64);
-                chars.next();
-            }
-            out.push((std::mem::take(&mut text), n));
-        } else {
-            text.push(c);
-            chars.next();
+impl StageConfig for WatchConfig {
+    const TYPE: StageType = StageType {
+        name: "watch-folder",
+        ports: (None, Some(PortType::File)),
+        parse: parse_config::<WatchConfig>,
+    };
+    fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
+        if input.is_some() {
+            return Err(b.wrong_input());
         }
-    }
-    out.push((text, u64::MAX));
-    out
-}
-
-/// Lists a folder once and emits its meshes.
-pub struct FolderSource {
-    config: FolderConfig,
-}
-
-impl FolderSource {
-    /// A folder source; `config.folder` must already be resolved.
-    pub fn new(config: FolderConfig) -> Self {
-        Self { config }
-    }
-
-    /// The meshes it will emit, in order.
-    pub fn files(&self) -> Result<Vec<PathBuf>, String> {
-        let c = &self.config;
-        let entries = read_dir_sorted(&c.folder).map_err(|e| format!("cannot list the folder: {e}"))?;
-        let mut files: Vec<PathBuf> = entries
-            .into_iter()
-            .filter(|p| p.is_file() && is_mesh_file(p))
-            .filter(|p| c.prefix.as_ref().is_none_or(|pre| shape_stem(p).starts_with(pre.as_str())))
-            .collect();
-        files.sort_by_key(|p| natural_key(&shape_stem(p)));
-        if let Some(names) = &c.names {
-            let mut chosen = Vec::new();
-            for n in names {
-                match files.iter().find(|p| &shape_stem(p) == n) {
-                    Some(p) => chosen.push(p.clone()),
-                    None => return Err(format!("no mesh named `{n}` in {}", c.folder.display())),
-                }
-            }
-            files = chosen;
-        }
-        let files: Vec<PathBuf> = files.into_iter().skip(c.skip).take(c.take.unwrap_or(usize::MAX)).collect();
-        if files.is_empty() {
-            return Err(format!(
-                "no mesh files (.off .obj .ply .vert, optionally .gz) in {}",
-                c.folder.display()
-            ));
-        }
-        Ok(files)
+        let name = b.stage.name.clone();
+        let source = WatchSource::new(b.data.clone(), self.clone());
+        Ok(Some(AnyPort::File(b.pipeline.source(&name, source))))
     }
 }
-
-impl Source for FolderSource {
-    type Out = InputFile;
-
-    fn run(&mut self, out: &Emitter<InputFile>) -> Result<(), String> {
-        for path in self.files()? {
-            let labels = match self.config.labels {
-                Labels::None => None,
-                Labels::Identity => Some(LabelSpec::Identity),
-                Labels::Sidecar => label_sidecar(&path).map(LabelSpec::File),
-            };
-            let mut job = Job::for_file(out.next_job_id(), &path, None);
-            let body = match (&self.config.labels, labels) {
-                (Labels::Sidecar, None) => Err(Failure::bad_input(
-                    "source",
-                    format!("{}: no label map beside it (NAME.labels or NAME.vts)", path.display()),
-                )),
-                (_, labels) => {
-                    if let Some(LabelSpec::File(f)) = &labels {
-                        job.labels_file = Some(f.clone());
-                    }
-                    Ok(InputFile { path, labels })
-                }
-            };
-            if !out.emit(Envelope { job, body }) {
-                break;
-            }
-        }
-        Ok(())
-    }
-}
-
-pub use crate::pipeline::message::LabelSpec;
 
 /// Settings of a `watch-folder` source.
 #[derive(Clone, Debug, Deserialize)]
@@ -422,19 +306,19 @@ impl WatchSource {
 impl Source for WatchSource {
     type Out = InputFile;
 
-    fn run(&mut self, out: &Emitter<InputFile>) -> Result<(), String> {
+    fn run(&mut self, out: &Emitter<InputFile>) -> Result<(), Error> {
         use notify::RecursiveMode;
         let dir = self.data.arrivals(self.kind());
-        fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        fs::create_dir_all(&dir).at(&dir)?;
         let (tx, rx) = flume::unbounded();
         let mut debouncer =
             notify_debouncer_full::new_debouncer(Duration::from_millis(200), None, move |ev| {
                 let _ = tx.send(ev);
             })
-            .map_err(|e| format!("cannot watch {}: {e}", dir.display()))?;
+            .map_err(|e| Error::BadInput(format!("cannot watch {}: {e}", dir.display())))?;
         debouncer
             .watch(&dir, RecursiveMode::NonRecursive)
-            .map_err(|e| format!("cannot watch {}: {e}", dir.display()))?;
+            .map_err(|e| Error::BadInput(format!("cannot watch {}: {e}", dir.display())))?;
         tracing::info!(folder = %dir.display(), "watching");
         let mut seen: HashMap<PathBuf, Seen> = HashMap::new();
         let rescan = Duration::from_millis(self.config.rescan_ms.max(50));
@@ -610,65 +494,37 @@ impl WatchSource {
     }
 }
 
-/// Settings of a `synthetic` source: shapes of the built-in creature family, with their labels
-/// (label = vertex index of the family's template).
-#[derive(Clone, Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SyntheticConfig {
-    /// Vertices per shape. Default 5000.
-    #[serde(default = "default_vertices")]
-    pub vertices: usize,
-    /// Seed of the family. Default 1.
-    #[serde(default = "default_seed")]
-    pub seed: u64,
-    /// Index of the first shape emitted. Default 0.
-    #[serde(default)]
-    pub first: usize,
-    /// Shapes emitted. Default 6.
-    #[serde(default = "default_count")]
-    pub count: usize,
-}
+#[cfg(test)]
+mod tests {
+    use super::*;
 
-fn default_vertices() -> usize {
-    5000
-}
-fn default_seed() -> u64 {
-    1
-}
-fn default_count() -> usize {
-    6
-}
-
-/// Emits shapes of the synthetic creature family with their labels.
-pub struct SyntheticSource {
-    config: SyntheticConfig,
-}
-
-impl SyntheticSource {
-    /// A synthetic source.
-    pub fn new(config: SyntheticConfig) -> Self {
-        Self { config }
-    }
-}
-
-impl Source for SyntheticSource {
-    type Out = Shape;
-
-    fn run(&mut self, out: &Emitter<Shape>) -> Result<(), String> {
-        let c = &self.config;
-        let fam = creature_family(
-            &CreatureParams { target_vertices: c.vertices, seed: c.seed, ..Default::default() },
-            c.first + c.count,
-        )
-        .map_err(|e| format!("cannot build the synthetic family: {e}"))?;
-        let labels = Arc::new(labels_identity(fam.template.n_vertices()));
-        for (i, mesh) in fam.shapes.into_iter().enumerate().skip(c.first) {
-            let job = Job::generated(out.next_job_id(), format!("creature{i}"));
-            let shape = Shape { mesh: Arc::new(mesh), labels: Some(labels.clone()) };
-            if !out.emit(Envelope { job, body: Ok(shape) }) {
-                break;
-            }
-        }
-        Ok(())
+    /// The settle rule on tokio's paused clock: a file is ready once its size and modification
+    /// time have not changed for `settle_ms`; a change starts the wait again.
+    #[tokio::test(start_paused = true)]
+    async fn a_file_is_taken_once_unchanged_for_the_settle_time() {
+        let tmp = tempfile::tempdir().unwrap();
+        let data = DataDir::new(tmp.path());
+        data.create().unwrap();
+        let config =
+            WatchConfig { kind: WatchKind::Scan, settle_ms: 2000, rescan_ms: 2000, exit_when_empty: false };
+        let mut watcher = WatchSource::new(data.clone(), config);
+        let file = data.incoming().join("a.off");
+        fs::write(&file, "OFF\n").unwrap();
+        let mut seen = HashMap::new();
+        let step = |ms| tokio::time::advance(Duration::from_millis(ms));
+        assert!(watcher.scan(&mut seen).ready.is_empty(), "first seen: not settled");
+        step(1999).await;
+        assert!(watcher.scan(&mut seen).ready.is_empty(), "1.999 s unchanged: not yet");
+        fs::write(&file, "OFF\n3 1 0\n").unwrap();
+        step(1500).await;
+        assert!(watcher.scan(&mut seen).ready.is_empty(), "it grew: the wait starts again");
+        step(1999).await;
+        assert!(watcher.scan(&mut seen).ready.is_empty());
+        step(2).await;
+        assert_eq!(watcher.scan(&mut seen).ready, vec![file.clone()], "2 s unchanged: ready");
+        // A copy in progress under a temporary name is never taken.
+        fs::write(data.incoming().join("b.off.part"), "OFF\n").unwrap();
+        step(60_000).await;
+        assert_eq!(watcher.scan(&mut seen).ready, vec![file]);
     }
 }

@@ -1,0 +1,102 @@
+//! The pipeline layer's error type. Job failures are not errors of the pipeline: they travel to
+//! the sinks as [`super::Failure`] values. An [`Error`] is what stops an actor, a start-up or a
+//! build: a file that cannot be written, an invalid pipeline file, a model that cannot be loaded.
+
+use std::path::PathBuf;
+
+use thiserror::Error;
+
+/// Why an actor, a build or a daemon start-up failed.
+#[derive(Debug, Error)]
+pub enum Error {
+    /// Reading, writing or moving a file failed.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// What the operating system said.
+        #[source]
+        source: std::io::Error,
+    },
+    /// An I/O error whose message already names its file (from the data folder's helpers).
+    #[error(transparent)]
+    File(#[from] std::io::Error),
+    /// A pipeline file is invalid (every problem at once).
+    #[error(transparent)]
+    Config(#[from] super::ConfigError),
+    /// A stage's settings cannot be used (found while building it).
+    #[error("stage `{stage}`: {message}")]
+    Stage {
+        /// The stage's name.
+        stage: String,
+        /// The setting at fault, when one is.
+        key: Option<&'static str>,
+        /// What is wrong.
+        message: String,
+    },
+    /// A model cannot be loaded, stored or served.
+    #[error("{0}")]
+    Model(String),
+    /// Training a new model version failed.
+    #[error("training failed: {0}")]
+    Training(String),
+    /// An input (a folder, a label map, a stored shape) is unusable.
+    #[error("{0}")]
+    BadInput(String),
+    /// The async runtime could not be started.
+    #[error("cannot start the runtime: {0}")]
+    Runtime(#[source] std::io::Error),
+    /// The data folder's lock cannot be taken (another process holds it) or written.
+    #[error("{0}")]
+    Lock(String),
+    /// The pipeline is shutting down.
+    #[error("the pipeline is shutting down")]
+    Shutdown,
+    /// An actor panicked outside a job (in its start or finish).
+    #[error("panic: {0}")]
+    Panic(String),
+    /// A mesh could not be read or written.
+    #[error(transparent)]
+    Mesh(#[from] crate::mesh::MeshError),
+    /// A spectrum could not be computed or cached.
+    #[error(transparent)]
+    Spectral(#[from] crate::spectral::SpectralError),
+    /// A forest operation failed.
+    #[error(transparent)]
+    Forest(#[from] crate::forest::ForestError),
+    /// The regulariser failed.
+    #[error(transparent)]
+    Regularizer(#[from] crate::regularizer::RegularizerError),
+    /// An evaluation report could not be written.
+    #[error(transparent)]
+    Eval(#[from] crate::eval::EvalError),
+    /// A synthetic family could not be generated.
+    #[error(transparent)]
+    Synth(#[from] crate::synth::SynthError),
+    /// A report could not be encoded.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+}
+
+impl Error {
+    /// An I/O error on `path`.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Self::Io { path: path.into(), source }
+    }
+
+    /// A problem with stage `stage`'s settings.
+    pub fn stage(stage: &str, message: impl Into<String>) -> Self {
+        Self::Stage { stage: stage.to_string(), key: None, message: message.into() }
+    }
+}
+
+/// An I/O result with its path attached: `fs::write(&p, x).at(&p)?`.
+pub(crate) trait IoAt<T> {
+    fn at(self, path: &std::path::Path) -> Result<T, Error>;
+}
+
+impl<T> IoAt<T> for std::io::Result<T> {
+    fn at(self, path: &std::path::Path) -> Result<T, Error> {
+        self.map_err(|e| Error::io(path, e))
+    }
+}
