@@ -150,10 +150,10 @@ fn file_errors_name_the_file_and_line() {
     assert!(matches!(err.root(), MeshError::Io(_)), "{err}");
     assert!(err.to_string().starts_with(&format!("{}: I/O error", missing.display())), "{err}");
 
-    let err = read_mesh(dir.path().join("scan.xyz")).unwrap_err();
+    let err = read_mesh(dir.path().join("scan.stl")).unwrap_err();
     assert!(err.to_string().ends_with(
-        "scan.xyz: unknown mesh file extension \"xyz\": expected .off, .obj, .ply, .vert or .tri, optionally followed by .gz"
-    ));
+        "scan.stl: unknown mesh file extension \"stl\": expected .off, .obj, .ply, .vert, .tri or .xyz, optionally followed by .gz"
+    ), "{err}");
 
     std::fs::write(dir.path().join("lonely.vert"), "0 0 0\n").unwrap();
     let err = read_mesh(dir.path().join("lonely.vert")).unwrap_err();
