@@ -122,6 +122,11 @@ pub struct EvalArgs {
     /// How every test shape is perturbed (seeded per test shape).
     #[command(flatten)]
     pub perturb: super::perturb::PerturbFlags,
+    /// Turn every test shape into a point cloud: faces dropped, a seeded random FRACTION of its
+    /// vertices kept (default 1: all), surface rebuilt from local triangulations. Applied
+    /// after the other perturbations.
+    #[arg(long, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "1")]
+    pub point_cloud: Option<f64>,
     /// Skip the WKS k-NN baseline (faster; its rows are left out).
     #[arg(long)]
     pub no_baseline: bool,
@@ -172,7 +177,11 @@ impl EvalArgs {
     /// The test-shape perturbations, in the order they are applied: crop, single view, holes,
     /// noise.
     pub(super) fn perturbations(&self) -> Vec<Perturbation> {
-        self.perturb.list()
+        let mut list = self.perturb.list();
+        if let Some(fraction) = self.point_cloud {
+            list.push(Perturbation::PointCloud { fraction });
+        }
+        list
     }
 }
 

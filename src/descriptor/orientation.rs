@@ -170,6 +170,7 @@ mod tests {
         let mirrored = Mesh {
             vertices: plane.vertices.iter().map(|p| [-p[0], p[1], p[2]]).collect(),
             faces: plane.faces.iter().map(|f| [f[0], f[2], f[1]]).collect(),
+            face_multiplicity: Vec::new(),
         };
         let hm = orientation_descriptors(&mirrored, fa.as_ref());
         for v in 0..plane.n_vertices() {

@@ -11,7 +11,6 @@ use rayon::prelude::*;
 
 use crate::mesh::{cross, dot, norm, sub, Mesh};
 use crate::spectral::cholesky::{numeric_llt, supernodal_symbolic};
-use crate::spectral::{cotan_laplacian, vertex_lumped_mass};
 
 use super::topology::{check_sources, edges_with_face_counts, vertex_components, vertex_on_boundary};
 use super::{mean_edge_length, GeodesicError};
@@ -288,8 +287,9 @@ impl HeatMethodSolver {
             return Err(GeodesicError::DegenerateMesh);
         }
         let time = params.time_factor * h * h;
-        let l = cotan_laplacian(mesh);
-        let mass = vertex_lumped_mass(mesh);
+        // the tufted Laplacian on non-manifold meshes and point clouds (positive definite M + tL)
+        let operator = crate::spectral::surface_operator(mesh);
+        let (l, mass) = (operator.stiffness(), operator.mass);
 
         let heat_op = combine(n, &l, time, &mass, 1.0)?;
         // Poisson: L + εM, and one vertex of every connected component pinned (its own
@@ -511,6 +511,7 @@ impl HeatMethodSolver {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::spectral::cotan_laplacian;
 
     #[test]
     fn face_operator_reproduces_linear_gradient() {

@@ -46,11 +46,28 @@ pub enum MeshError {
         /// Face count found.
         faces: usize,
     },
-    /// The data has vertices but no faces: a point cloud.
-    #[error("point clouds are not supported: the mesh has {vertices} vertices but no faces")]
+    /// A [`crate::mesh::Mesh`] was built from vertices without faces. (Readers accept such data
+    /// as a point cloud instead, see [`crate::mesh::point_cloud_mesh`].)
+    #[error("the mesh has {vertices} vertices but no faces (a point cloud: build it with point_cloud_mesh)")]
     PointCloud {
         /// Vertex count found.
         vertices: usize,
+    },
+    /// A point cloud has too few points to build local triangulations.
+    #[error("a point cloud needs at least {min} points, this one has {points}")]
+    PointCloudTooSmall {
+        /// Points found.
+        points: usize,
+        /// The minimum.
+        min: usize,
+    },
+    /// No surface could be built for a point cloud.
+    #[error("point cloud of {points} points is degenerate: {reason}")]
+    DegeneratePointCloud {
+        /// Points found.
+        points: usize,
+        /// What is wrong.
+        reason: String,
     },
     /// A perturbation ([`super::Perturbation`]) has out-of-range settings or removes the whole
     /// surface.
@@ -119,7 +136,7 @@ pub enum MeshError {
     },
     /// The file name does not end in an extension this crate reads or writes.
     #[error(
-        "unknown mesh file extension {extension:?}: expected .off, .obj, .ply, .vert or .tri, optionally followed by .gz"
+        "unknown mesh file extension {extension:?}: expected .off, .obj, .ply, .vert, .tri or .xyz, optionally followed by .gz"
     )]
     UnknownExtension {
         /// The extension found (empty when there is none).

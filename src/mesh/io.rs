@@ -1,7 +1,7 @@
 //! File-level entry points: [`read_mesh`], [`read_mesh_with_report`], [`write_mesh`], and
 //! [`parse_mesh`] / [`read_mesh_from`] for data already in memory or behind a reader.
 //!
-//! The format follows the file extension (`.off`, `.obj`, `.ply`, `.vert`, `.tri`, any of
+//! The format follows the file extension (`.off`, `.obj`, `.ply`, `.vert`, `.tri`, `.xyz`, any of
 //! them optionally followed by `.gz`, case-insensitive). Gzip data is recognised by its magic
 //! number, so a compressed file without `.gz` reads too. Every error from a file is wrapped
 //! in [`MeshError::InFile`] naming it.
@@ -10,12 +10,13 @@ use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
-use super::obj::{parse_obj, write_obj};
-use super::off::{parse_off, write_off};
-use super::ply::{parse_ply, write_ply, PlyEncoding};
-use super::report::{MeshFormat, MeshReport};
+use super::obj::{obj_parts, write_obj};
+use super::off::{off_parts, write_off};
+use super::ply::{ply_parts, write_ply, PlyEncoding};
+use super::report::{MeshFormat, MeshReport, Parts};
 use super::text::gunzip_limited;
 use super::tosca::{parse_tri, parse_vert, write_tosca};
+use super::xyz::{write_xyz, xyz_parts};
 use super::{Mesh, MeshError};
 use crate::limits::Limits;
 
@@ -37,6 +38,7 @@ impl MeshFormat {
             "obj" => Ok(MeshFormat::Obj),
             "ply" => Ok(MeshFormat::Ply),
             "vert" | "tri" => Ok(MeshFormat::Tosca),
+            "xyz" => Ok(MeshFormat::Xyz),
             _ => Err(MeshError::UnknownExtension { extension: ext }),
         }
     }
@@ -92,7 +94,7 @@ pub fn read_mesh_limited(
     } else {
         let bytes = read_file_limited(path, limits.max_file_bytes, follow_symlinks)?;
         let bytes = gunzip_limited(&bytes, limits.max_file_bytes).map_err(|e| e.in_file(path))?;
-        parse_mesh(&bytes, format).map_err(|e| e.in_file(path))?
+        parts(&bytes, format).and_then(|p| p.finish(limits)).map_err(|e| e.in_file(path))?
     };
     check_counts(&mesh, limits).map_err(|e| e.in_file(path))?;
     Ok((mesh, report))
@@ -175,10 +177,16 @@ pub fn read_file_limited(path: &Path, limit: u64, follow_symlinks: bool) -> Resu
 /// assert!(report.is_clean());
 /// ```
 pub fn parse_mesh(bytes: &[u8], format: MeshFormat) -> Result<(Mesh, MeshReport), MeshError> {
+    parts(bytes, format)?.finish(&Limits::default())
+}
+
+/// What the reader of `format` finds in `bytes`, before the mesh is built.
+fn parts(bytes: &[u8], format: MeshFormat) -> Result<Parts, MeshError> {
     match format {
-        MeshFormat::Off => parse_off(bytes),
-        MeshFormat::Obj => parse_obj(bytes),
-        MeshFormat::Ply => parse_ply(bytes),
+        MeshFormat::Off => off_parts(bytes),
+        MeshFormat::Obj => obj_parts(bytes),
+        MeshFormat::Ply => ply_parts(bytes),
+        MeshFormat::Xyz => xyz_parts(bytes),
         MeshFormat::Tosca => Err(MeshError::Unsupported {
             what: "reading a TOSCA mesh from one buffer (use parse_tosca with the .vert and .tri data)"
                 .into(),
@@ -215,7 +223,9 @@ fn read_tosca_pair(path: &Path, limits: &Limits, follow: bool) -> Result<(Mesh, 
     };
     let vertices = parse_vert(&read(&vert_path)?).map_err(|e| e.in_file(&vert_path))?;
     let faces = parse_tri(&read(&tri_path)?, vertices.len()).map_err(|e| e.in_file(&tri_path))?;
-    super::report::finish(vertices, faces, MeshFormat::Tosca, Vec::new()).map_err(|e| e.in_file(&vert_path))
+    Parts { vertices, faces, format: MeshFormat::Tosca, notes: Vec::new() }
+        .finish(limits)
+        .map_err(|e| e.in_file(&vert_path))
 }
 
 /// A file being written, plain or gzip-compressed.
@@ -282,6 +292,7 @@ pub fn write_mesh(path: impl AsRef<Path>, mesh: &Mesh) -> Result<(), MeshError> 
     match format {
         MeshFormat::Off => write_off(mesh, &mut w),
         MeshFormat::Obj => write_obj(mesh, &mut w),
+        MeshFormat::Xyz => write_xyz(mesh, &mut w),
         _ => write_ply(mesh, &mut w, PlyEncoding::BinaryLittleEndian, None),
     }
     .map_err(|e| e.in_file(path))?;

@@ -8,16 +8,24 @@
 //! # Reading
 //! [`read_mesh`] / [`read_mesh_with_report`] read a file by extension: OFF (`.off`, with
 //! `COFF`/`NOFF` variants, vertex colours and polygons), OBJ (`.obj`), PLY (`.ply`, ascii and
-//! binary), TOSCA pairs (`.vert` + `.tri`), each optionally gzip-compressed (`.gz`). The
-//! per-format functions [`parse_off`], [`parse_obj`], [`parse_ply`], [`parse_tosca`] (and
-//! [`parse_mesh`], [`read_mesh_from`]) read from memory or any reader. Polygons are split into
-//! triangle fans.
+//! binary), TOSCA pairs (`.vert` + `.tri`), point clouds (`.xyz`), each optionally
+//! gzip-compressed (`.gz`). The per-format functions [`parse_off`], [`parse_obj`], [`parse_ply`],
+//! [`parse_tosca`], [`parse_xyz_cloud`] (and [`parse_mesh`], [`read_mesh_from`]) read from
+//! memory or any reader. Polygons are split into triangle fans.
 //!
 //! Readers never panic, whatever the bytes: malformed data gives a [`MeshError`] naming the
 //! file, the line (or PLY element) and what was expected, e.g.
 //! `cat.off: line 17: expected 3 coordinates, found 2`. Counts in headers are never trusted
-//! for allocation beyond what the data's size allows. Point clouds (vertices, no faces) are
-//! rejected with [`MeshError::PointCloud`].
+//! for allocation beyond what the data's size allows.
+//!
+//! # Point clouds
+//! Data with vertices and no faces (`.xyz`, or an OFF/OBJ/PLY file without faces) is a point
+//! cloud: the mesh read from it has the points as vertices, in file order, and the distinct
+//! triangles of their local tangent-plane Delaunay triangulations as faces
+//! ([`point_cloud_mesh`], Sharp & Crane 2020), a non-manifold surface on which the spectral
+//! and geodesic code use the tufted intrinsic-Delaunay Laplacian. The report says so with
+//! [`MeshWarning::PointCloud`]. [`Mesh::new`] itself still refuses vertices without faces
+//! ([`MeshError::PointCloud`]).
 //!
 //! Problems that do not prevent use (zero-area faces, non-manifold edges, unreferenced
 //! vertices, duplicate faces, triangulated polygons, skipped content) are returned as
@@ -29,6 +37,7 @@
 //! print coordinates in shortest round-trip form, so write-then-read is bit-exact in every
 //! format.
 
+mod cloud;
 mod error;
 mod io;
 mod obj;
@@ -41,7 +50,12 @@ mod summary;
 mod text;
 mod topology;
 mod tosca;
+mod xyz;
 
+pub use cloud::{
+    local_triangulation, point_cloud_mesh, LocalTriangulation, DEFAULT_NEIGHBOURS, MIN_POINTS,
+    POINT_CLOUD_COVER,
+};
 pub use error::{Location, MeshError};
 pub use io::{
     parse_mesh, read_file_limited, read_mesh, read_mesh_from, read_mesh_limited, read_mesh_with_report,
@@ -59,6 +73,7 @@ pub use summary::{is_zero_area, ComponentSize, MeshSummary};
 pub use text::MAX_DECOMPRESSED_BYTES;
 pub use topology::{face_connectivity, UnionFind};
 pub use tosca::{parse_tosca, parse_tri, parse_vert, write_tosca};
+pub use xyz::{parse_xyz_cloud, write_xyz};
 
 use serde::{Deserialize, Serialize};
 
@@ -72,6 +87,13 @@ pub struct Mesh {
     pub vertices: Vec<[f64; 3]>,
     /// Triangles as 0-based vertex indices.
     pub faces: Vec<[usize; 3]>,
+    /// Empty for an ordinary mesh. For the surface of a point cloud ([`point_cloud_mesh`]): how
+    /// many of the local triangulations (fans) hold each face; they cover the surface
+    /// [`POINT_CLOUD_COVER`] times, so face `f` stands for `face_multiplicity[f] / 3` of its area.
+    /// Ignored (every face counts once) when its length is not the number of faces, e.g. after
+    /// faces were added or removed by hand.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub face_multiplicity: Vec<u32>,
 }
 
 impl Mesh {
@@ -104,7 +126,14 @@ impl Mesh {
                 return Err(MeshError::RepeatedVertexInFace { face: f, indices: *tri });
             }
         }
-        Ok(Self { vertices, faces })
+        Ok(Self { vertices, faces, face_multiplicity: Vec::new() })
+    }
+
+    /// The face multiplicities of a point-cloud surface (see [`Mesh::face_multiplicity`]), or
+    /// `None` for an ordinary mesh.
+    pub fn point_cloud_multiplicity(&self) -> Option<&[u32]> {
+        (!self.face_multiplicity.is_empty() && self.face_multiplicity.len() == self.faces.len())
+            .then_some(&self.face_multiplicity[..])
     }
 
     /// Number of vertices.
@@ -131,9 +160,15 @@ impl Mesh {
             .collect()
     }
 
-    /// Total surface area.
+    /// Total surface area (of a point-cloud surface: each face weighted by its multiplicity
+    /// over [`POINT_CLOUD_COVER`], the area the local triangulations cover).
     pub fn surface_area(&self) -> f64 {
-        self.face_areas().iter().sum()
+        match self.point_cloud_multiplicity() {
+            None => self.face_areas().iter().sum(),
+            Some(m) => {
+                self.face_areas().iter().zip(m).map(|(a, &k)| a * k as f64).sum::<f64>() / POINT_CLOUD_COVER
+            }
+        }
     }
 
     /// Axis-aligned bounding box `(min, max)`.
@@ -165,6 +200,9 @@ impl Mesh {
                 h.write_u64(i as u64);
             }
         }
+        for &m in &self.face_multiplicity {
+            h.write_u64(m as u64);
+        }
         h.finish()
     }
 
@@ -173,6 +211,7 @@ impl Mesh {
         Mesh {
             vertices: self.vertices.iter().map(|p| [p[0] * factor, p[1] * factor, p[2] * factor]).collect(),
             faces: self.faces.clone(),
+            face_multiplicity: self.face_multiplicity.clone(),
         }
     }
 }

@@ -16,9 +16,10 @@
 
 use std::io::Write;
 
-use super::report::{check_face, check_vertex, finish, push_fan, MeshFormat, MeshReport, MeshWarning};
+use super::report::{check_face, check_vertex, push_fan, MeshFormat, MeshReport, MeshWarning, Parts};
 use super::text::{gunzip_if_needed, parse_i64, parse_xyz, show, tokens, Lines};
 use super::{Mesh, MeshError};
+use crate::limits::Limits;
 
 /// Parses OBJ data (plain or gzip-compressed) into a mesh and a report.
 ///
@@ -29,6 +30,11 @@ use super::{Mesh, MeshError};
 /// assert_eq!(mesh.faces, vec![[0, 1, 2], [0, 2, 3]]);
 /// ```
 pub fn parse_obj(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
+    obj_parts(bytes)?.finish(&Limits::default())
+}
+
+/// The vertices, faces and notes of OBJ data, before the mesh is built.
+pub(crate) fn obj_parts(bytes: &[u8]) -> Result<Parts, MeshError> {
     let bytes = gunzip_if_needed(bytes)?;
     let bytes = &bytes[..];
     let joined;
@@ -104,7 +110,7 @@ pub fn parse_obj(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
             count: unknown,
         });
     }
-    finish(vertices, faces, MeshFormat::Obj, notes)
+    Ok(Parts { vertices, faces, format: MeshFormat::Obj, notes })
 }
 
 /// Parses one face reference `v[/vt][/vn]` into a 0-based vertex index.
@@ -230,10 +236,7 @@ mod tests {
             "line 2: expected a relative vertex index within the 1 vertices defined so far, found \"-2\""
         );
         assert_eq!(err("v 0 0 0\nv inf 0 0\n"), "line 2: vertex 1 has a NaN or infinite coordinate");
-        assert_eq!(
-            err("v 0 0 0\nv 1 1 1\np 1\n"),
-            "point clouds are not supported: the mesh has 2 vertices but no faces"
-        );
+        assert_eq!(err("v 0 0 0\nv 1 1 1\np 1\n"), "a point cloud needs at least 4 points, this one has 2");
         assert_eq!(err("# nothing\n"), "empty mesh: 0 vertices, 0 faces");
     }
 

@@ -16,9 +16,10 @@
 
 use std::io::Write;
 
-use super::report::{check_vertex, finish, push_fan, MeshFormat, MeshReport, MeshWarning};
+use super::report::{check_vertex, push_fan, MeshFormat, MeshReport, MeshWarning, Parts};
 use super::text::{capped_capacity, gunzip_if_needed, parse_usize, parse_xyz, show, tokens, Lines};
 use super::{Mesh, MeshError};
+use crate::limits::Limits;
 
 /// Parses OFF data (plain or gzip-compressed) into a mesh and a report.
 ///
@@ -29,6 +30,11 @@ use super::{Mesh, MeshError};
 /// assert_eq!(report.warnings.len(), 1); // the quad was triangulated
 /// ```
 pub fn parse_off(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
+    off_parts(bytes)?.finish(&Limits::default())
+}
+
+/// The vertices, faces and notes of OFF data, before the mesh is built.
+pub(crate) fn off_parts(bytes: &[u8]) -> Result<Parts, MeshError> {
     let bytes = gunzip_if_needed(bytes)?;
     let bytes = &bytes[..];
     let mut lines = Lines::new(bytes);
@@ -142,7 +148,7 @@ pub fn parse_off(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
     if polygons > 0 {
         notes.push(MeshWarning::PolygonsTriangulated { polygons, triangles: polygon_triangles });
     }
-    finish(vertices, faces, MeshFormat::Off, notes)
+    Ok(Parts { vertices, faces, format: MeshFormat::Off, notes })
 }
 
 /// Accepts `[ST][C][N]OFF`; rejects 4-D and n-D variants by name.
@@ -242,7 +248,7 @@ mod tests {
         );
         assert_eq!(
             err("OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n").to_string(),
-            "point clouds are not supported: the mesh has 3 vertices but no faces"
+            "a point cloud needs at least 4 points, this one has 3"
         );
         assert_eq!(
             err("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n").to_string(),

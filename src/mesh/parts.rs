@@ -27,7 +27,13 @@ pub fn vertex_components(mesh: &Mesh) -> (Vec<usize>, Vec<usize>) {
 /// The sub-mesh of the faces whose three vertices are kept, with `kept[new] = old` (vertices in
 /// input order; vertices no kept face uses are dropped). `None` when no face is kept.
 pub fn submesh(mesh: &Mesh, keep: &[bool]) -> Option<(Mesh, Vec<usize>)> {
-    let faces: Vec<[usize; 3]> = mesh.faces.iter().filter(|f| f.iter().all(|&v| keep[v])).copied().collect();
+    let inside = |f: &[usize; 3]| f.iter().all(|&v| keep[v]);
+    // a point-cloud surface keeps its faces' fan multiplicities
+    let multiplicity: Vec<u32> = mesh
+        .point_cloud_multiplicity()
+        .map(|m| mesh.faces.iter().zip(m).filter(|(f, _)| inside(f)).map(|(_, &k)| k).collect())
+        .unwrap_or_default();
+    let faces: Vec<[usize; 3]> = mesh.faces.iter().filter(|f| inside(f)).copied().collect();
     if faces.is_empty() {
         return None;
     }
@@ -44,7 +50,9 @@ pub fn submesh(mesh: &Mesh, keep: &[bool]) -> Option<(Mesh, Vec<usize>)> {
     }
     let vertices = kept.iter().map(|&v| mesh.vertices[v]).collect();
     let faces = faces.iter().map(|f| [index[f[0]], index[f[1]], index[f[2]]]).collect();
-    Mesh::new(vertices, faces).ok().map(|m| (m, kept))
+    let mut sub = Mesh::new(vertices, faces).ok()?;
+    sub.face_multiplicity = multiplicity;
+    Some((sub, kept))
 }
 
 /// The largest connected component (by vertex count) as a sub-mesh with its vertex map, or
@@ -156,6 +164,11 @@ pub fn boundary_loops(mesh: &Mesh) -> Vec<Vec<usize>> {
 /// assert_eq!(fill_holes(&m, 3.0).1, 0); // perimeter above the limit: left open
 /// ```
 pub fn fill_holes(mesh: &Mesh, max_perimeter: f64) -> (Mesh, usize) {
+    // A point-cloud surface is a soup whose "holes" are gaps between inconsistent fans; its
+    // Laplacian (the tufted cover) is closed already: it is left as it is.
+    if mesh.point_cloud_multiplicity().is_some() {
+        return (mesh.clone(), 0);
+    }
     let mut vertices = mesh.vertices.clone();
     let mut faces = mesh.faces.clone();
     let mut closed = 0;

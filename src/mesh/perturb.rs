@@ -51,6 +51,13 @@ pub enum Perturbation {
         /// Standard deviation as a fraction of the mean edge length.
         sigma: f64,
     },
+    /// A point cloud: the faces are dropped and a seeded random `fraction` of the vertices is
+    /// kept (in order), whose surface is rebuilt from local triangulations
+    /// ([`super::point_cloud_mesh`]). Applied after every other perturbation of the list.
+    PointCloud {
+        /// Fraction of the vertices kept, in (0, 1].
+        fraction: f64,
+    },
 }
 
 impl Perturbation {
@@ -94,6 +101,11 @@ impl Perturbation {
                     return bad("the noise level must be in [0, 10] mean edge lengths");
                 }
             }
+            Perturbation::PointCloud { fraction } => {
+                if !(fraction.is_finite() && fraction > 0.0 && fraction <= 1.0) {
+                    return bad("the fraction of points kept must be in (0, 1]");
+                }
+            }
         }
         Ok(())
     }
@@ -107,6 +119,8 @@ impl fmt::Display for Perturbation {
             Perturbation::PartialView { min_cos } => write!(f, "partial-view{min_cos}"),
             Perturbation::Crop { radius } => write!(f, "crop{radius}"),
             Perturbation::Noise { sigma } => write!(f, "noise{sigma}"),
+            Perturbation::PointCloud { fraction: 1.0 } => write!(f, "point-cloud"),
+            Perturbation::PointCloud { fraction } => write!(f, "point-cloud{fraction}"),
         }
     }
 }
@@ -175,6 +189,7 @@ pub fn perturb(mesh: &Mesh, list: &[Perturbation], seed: u64) -> Result<Perturbe
     let sqrt_area = mesh.surface_area().sqrt();
     let mut vertices = mesh.vertices.clone();
     let mut faces: Vec<[usize; 3]> = mesh.faces.clone();
+    let mut cloud = None;
     for (i, p) in list.iter().enumerate() {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ (0x5f3a_9c21_d4e7_b861u64.wrapping_mul(i as u64 + 1)));
         match *p {
@@ -206,6 +221,7 @@ pub fn perturb(mesh: &Mesh, list: &[Perturbation], seed: u64) -> Result<Perturbe
                     }
                 }
             }
+            Perturbation::PointCloud { fraction } => cloud = Some((fraction, rng.clone())),
         }
         if faces.is_empty() {
             return Err(MeshError::InvalidPerturbation(format!(
@@ -225,6 +241,17 @@ pub fn perturb(mesh: &Mesh, list: &[Perturbation], seed: u64) -> Result<Perturbe
     let mut new_index = vec![usize::MAX; vertices.len()];
     for (new, &old) in kept.iter().enumerate() {
         new_index[old] = new;
+    }
+    if let Some((fraction, mut rng)) = cloud {
+        let sampled: Vec<usize> = kept.iter().copied().filter(|_| rng.random_bool(fraction)).collect();
+        let points: Vec<[f64; 3]> = sampled.iter().map(|&v| vertices[v]).collect();
+        let mesh = super::point_cloud_mesh(&points, super::DEFAULT_NEIGHBOURS).map_err(|e| {
+            MeshError::InvalidPerturbation(format!(
+                "{}: no point-cloud surface: {e}",
+                perturbations_name(list)
+            ))
+        })?;
+        return Ok(Perturbed { mesh, kept: sampled });
     }
     let out_vertices = kept.iter().map(|&v| vertices[v]).collect();
     let out_faces = faces.iter().map(|f| [new_index[f[0]], new_index[f[1]], new_index[f[2]]]).collect();
@@ -463,5 +490,34 @@ mod tests {
         assert!(e.to_string().contains("number of holes"), "{e}");
         let e = perturb(&sphere, &[Perturbation::Crop { radius: 1e-9 }], 0).unwrap_err();
         assert!(e.to_string().contains("no face is left"), "{e}");
+    }
+
+    #[test]
+    fn point_cloud_keeps_a_seeded_fraction_of_the_points() {
+        let sphere = icosphere(3, 1.0);
+        let all = perturb(&sphere, &[Perturbation::PointCloud { fraction: 1.0 }], 3).unwrap();
+        assert_eq!(all.kept, (0..sphere.n_vertices()).collect::<Vec<_>>());
+        assert_eq!(all.mesh.vertices, sphere.vertices);
+        assert!(all.mesh.point_cloud_multiplicity().is_some());
+        assert!((all.area_fraction(&sphere) - 1.0).abs() < 0.05);
+        let half = perturb(&sphere, &[Perturbation::PointCloud { fraction: 0.5 }], 3).unwrap();
+        let n = half.kept.len() as f64 / sphere.n_vertices() as f64;
+        assert!((0.4..0.6).contains(&n), "{n}");
+        assert!(half.kept.windows(2).all(|w| w[0] < w[1]));
+        for (v, &old) in half.kept.iter().enumerate() {
+            assert_eq!(half.mesh.vertices[v], sphere.vertices[old]);
+        }
+        assert_eq!(
+            perturb(&sphere, &[Perturbation::PointCloud { fraction: 0.5 }], 3).unwrap().kept,
+            half.kept
+        );
+        // after holes, the cloud samples what the holes left
+        let list =
+            [Perturbation::PointCloud { fraction: 1.0 }, Perturbation::Holes { count: 2, radius: 0.1 }];
+        let holed = perturb(&sphere, &list, 4).unwrap();
+        assert!(holed.kept.len() < sphere.n_vertices());
+        assert_eq!(perturbations_name(&list), "point-cloud+holes2x0.1");
+        let e = perturb(&sphere, &[Perturbation::PointCloud { fraction: 0.0 }], 3).unwrap_err();
+        assert!(e.to_string().contains("(0, 1]"), "{e}");
     }
 }

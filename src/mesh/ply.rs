@@ -22,9 +22,10 @@ use ply_rs_bw::ply::{
 };
 
 use super::error::Location;
-use super::report::{check_face, check_vertex, finish, push_fan, MeshFormat, MeshReport, MeshWarning};
+use super::report::{check_face, check_vertex, push_fan, MeshFormat, MeshReport, MeshWarning, Parts};
 use super::text::gunzip_if_needed;
 use super::{Mesh, MeshError};
+use crate::limits::Limits;
 
 /// How a PLY file is encoded when written.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -179,6 +180,11 @@ fn ply_error(e: ply_rs_bw::parser::ParseError, ascii: bool, def: Option<&Element
 /// assert_eq!(mesh.faces, vec![[0, 1, 2]]);
 /// ```
 pub fn parse_ply(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
+    ply_parts(bytes)?.finish(&Limits::default())
+}
+
+/// The vertices, faces and notes of PLY data, before the mesh is built.
+pub(crate) fn ply_parts(bytes: &[u8]) -> Result<Parts, MeshError> {
     let bytes = gunzip_if_needed(bytes)?;
     let mut reader = Reader::new(&bytes[..]);
     let header = Parser::<Skip>::new().read_header(&mut reader).map_err(|e| ply_error(e, true, None))?;
@@ -339,7 +345,7 @@ pub fn parse_ply(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
             count: ignored,
         });
     }
-    finish(vertices, faces, MeshFormat::Ply, notes)
+    Ok(Parts { vertices, faces, format: MeshFormat::Ply, notes })
 }
 
 /// Writes `mesh` as PLY, with optional per-vertex RGB colours (one per vertex).
@@ -473,7 +479,7 @@ mod tests {
             "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n0 0\n";
         assert!(err(text).starts_with("expected a vertex property `z`"), "{}", err(text));
         let text = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n";
-        assert_eq!(err(text), "point clouds are not supported: the mesh has 3 vertices but no faces");
+        assert_eq!(err(text), "a point cloud needs at least 4 points, this one has 3");
         let text =
             "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
                     element face 1\nproperty list uchar float vertex_indices\nend_header\n";

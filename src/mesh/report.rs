@@ -6,8 +6,10 @@
 
 use std::fmt;
 
+use super::cloud::{point_cloud_mesh, DEFAULT_NEIGHBOURS};
 use super::summary::{analyse, MeshSummary};
 use super::{Mesh, MeshError};
+use crate::limits::Limits;
 
 /// A mesh file format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -20,6 +22,8 @@ pub enum MeshFormat {
     Ply,
     /// TOSCA pair: `NAME.vert` (one `x y z` per line) and `NAME.tri` (1-based `i j k`).
     Tosca,
+    /// Point cloud as text (`.xyz`): one `x y z` per line, extra columns ignored.
+    Xyz,
 }
 
 impl fmt::Display for MeshFormat {
@@ -29,6 +33,7 @@ impl fmt::Display for MeshFormat {
             MeshFormat::Obj => "OBJ",
             MeshFormat::Ply => "PLY",
             MeshFormat::Tosca => "TOSCA vert/tri",
+            MeshFormat::Xyz => "XYZ point cloud",
         })
     }
 }
@@ -69,6 +74,16 @@ pub enum MeshWarning {
         /// Triangles they became.
         triangles: usize,
     },
+    /// The file holds points without faces: a surface was built from local triangulations of
+    /// the points (see [`super::point_cloud_mesh`]).
+    PointCloud {
+        /// Points in the file (the mesh's vertices, in file order).
+        points: usize,
+        /// Neighbours per point of the local triangulations.
+        neighbours: usize,
+        /// Distinct triangles of the local triangulations (the mesh's faces).
+        triangles: usize,
+    },
     /// Parts of the file that carry no surface were skipped (OBJ points and lines,
     /// PLY elements other than `vertex` and `face`, unknown OBJ statements).
     Ignored {
@@ -98,6 +113,12 @@ impl fmt::Display for MeshWarning {
                 write!(f, "{polygons} polygon(s) with more than 3 vertices split into {triangles} triangles")
             }
             MeshWarning::Ignored { what, count } => write!(f, "ignored {count} {what}"),
+            MeshWarning::PointCloud { points, neighbours, triangles } => write!(
+                f,
+                "point cloud of {points} points without faces: surface built from local triangulations \
+                 ({neighbours} neighbours, {triangles} distinct triangles, non-manifold; the tufted \
+                 Laplacian is used)"
+            ),
         }
     }
 }
@@ -131,22 +152,61 @@ impl fmt::Display for MeshReport {
     }
 }
 
-/// Builds the mesh (with [`Mesh::new`]'s checks) and its report. Readers have already
-/// checked faces and coordinates with file positions; here only emptiness remains.
-pub(crate) fn finish(
-    vertices: Vec<[f64; 3]>,
-    faces: Vec<[usize; 3]>,
+/// What a reader found, before the mesh is built by [`Parts::finish`].
+pub(crate) struct Parts {
+    pub(crate) vertices: Vec<[f64; 3]>,
+    pub(crate) faces: Vec<[usize; 3]>,
+    pub(crate) format: MeshFormat,
+    pub(crate) notes: Vec<MeshWarning>,
+}
+
+impl Parts {
+    /// Builds the mesh (with [`Mesh::new`]'s checks) and its report. Readers have already
+    /// checked faces and coordinates with file positions; here only emptiness remains. Vertices
+    /// without any face are a point cloud: its surface is built from local triangulations
+    /// ([`super::point_cloud_mesh`]), after the vertex count is checked against `limits` (the
+    /// construction allocates per point).
+    pub(crate) fn finish(self, limits: &Limits) -> Result<(Mesh, MeshReport), MeshError> {
+        let Parts { vertices, faces, format, mut notes } = self;
+        if vertices.len() > limits.max_vertices {
+            return Err(MeshError::OverLimit {
+                what: "vertices",
+                found: vertices.len(),
+                limit: limits.max_vertices,
+            });
+        }
+        let mesh = if faces.is_empty() && !vertices.is_empty() {
+            let mesh = point_cloud_mesh(&vertices, DEFAULT_NEIGHBOURS)?;
+            notes.insert(
+                0,
+                MeshWarning::PointCloud {
+                    points: mesh.n_vertices(),
+                    neighbours: DEFAULT_NEIGHBOURS.min(mesh.n_vertices() - 1),
+                    triangles: mesh.n_faces(),
+                },
+            );
+            mesh
+        } else {
+            Mesh::new(vertices, faces)?
+        };
+        finish_mesh(mesh, format, notes)
+    }
+}
+
+fn finish_mesh(
+    mesh: Mesh,
     format: MeshFormat,
     notes: Vec<MeshWarning>,
 ) -> Result<(Mesh, MeshReport), MeshError> {
-    let mesh = Mesh::new(vertices, faces)?;
+    let point_cloud = notes.iter().any(|n| matches!(n, MeshWarning::PointCloud { .. }));
     let analysis = analyse(&mesh);
     let s = &analysis.summary;
     let mut warnings = Vec::new();
     if let Some(first) = analysis.first_zero_area {
         warnings.push(MeshWarning::ZeroAreaFaces { count: s.n_zero_area_faces, first });
     }
-    if s.n_non_manifold_edges > 0 {
+    // a point cloud's surface is non-manifold by construction: its note says so
+    if s.n_non_manifold_edges > 0 && !point_cloud {
         warnings.push(MeshWarning::NonManifoldEdges { count: s.n_non_manifold_edges });
     }
     if let Some(first) = analysis.first_unreferenced {

@@ -7,7 +7,7 @@
 
 use std::io::Write;
 
-use super::report::{check_face, check_vertex, finish, MeshFormat, MeshReport};
+use super::report::{check_face, check_vertex, MeshFormat, MeshReport, Parts};
 use super::text::{
     capped_capacity, gunzip_if_needed, parse_f64, parse_usize, parse_xyz, show, tokens, Lines,
 };
@@ -84,7 +84,8 @@ fn parse_one_based(tok: &[u8]) -> Option<usize> {
 pub fn parse_tosca(vert: &[u8], tri: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
     let vertices = parse_vert(vert).map_err(|e| e.in_file("<vert data>".as_ref()))?;
     let faces = parse_tri(tri, vertices.len()).map_err(|e| e.in_file("<tri data>".as_ref()))?;
-    finish(vertices, faces, MeshFormat::Tosca, Vec::new())
+    Parts { vertices, faces, format: MeshFormat::Tosca, notes: Vec::new() }
+        .finish(&crate::limits::Limits::default())
 }
 
 /// Writes `mesh` as a TOSCA pair: vertices to `vert`, 1-based triangles to `tri`.
@@ -127,6 +128,6 @@ mod tests {
         let e = parse_tosca(b"0 0 0\n1 0\n", b"1 2 3\n").unwrap_err();
         assert_eq!(e.to_string(), "<vert data>: line 2: expected 3 coordinates, found 2");
         let e = parse_tosca(b"0 0 0\n1 0 0\n0 1 0\n", b"").unwrap_err();
-        assert_eq!(e.to_string(), "point clouds are not supported: the mesh has 3 vertices but no faces");
+        assert_eq!(e.to_string(), "a point cloud needs at least 4 points, this one has 3");
     }
 }

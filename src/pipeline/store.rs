@@ -269,7 +269,8 @@ pub fn read_dir_sorted(dir: &Path) -> io::Result<Vec<PathBuf>> {
     Ok(v)
 }
 
-/// Whether a file name looks like a mesh shapeforest reads (`.off .obj .ply .vert`, also `.gz`).
+/// Whether a file name looks like a mesh shapeforest reads (`.off .obj .ply .vert`, point clouds
+/// `.xyz`, also `.gz`).
 ///
 /// ```
 /// use std::path::Path;
@@ -277,6 +278,7 @@ pub fn read_dir_sorted(dir: &Path) -> io::Result<Vec<PathBuf>> {
 /// assert!(is_mesh_file(Path::new("a/cat0.off")));
 /// assert!(is_mesh_file(Path::new("b.PLY")));
 /// assert!(is_mesh_file(Path::new("c.off.gz")));
+/// assert!(is_mesh_file(Path::new("scan.xyz")));
 /// assert!(!is_mesh_file(Path::new("cat0.labels")));
 /// assert!(!is_mesh_file(Path::new(".cat0.off.part")));
 /// ```
@@ -286,7 +288,7 @@ pub fn is_mesh_file(path: &Path) -> bool {
         return false;
     }
     let name = name.strip_suffix(".gz").unwrap_or(&name);
-    [".off", ".obj", ".ply", ".vert"].iter().any(|e| name.ends_with(e))
+    [".off", ".obj", ".ply", ".vert", ".xyz"].iter().any(|e| name.ends_with(e))
 }
 
 /// Whether a file is something being written or an editor's or copier's own (hidden dot-files

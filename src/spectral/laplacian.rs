@@ -1,8 +1,118 @@
-//! Cotangent Laplacian and lumped mass matrix.
+//! Cotangent Laplacian and lumped mass matrix, and [`surface_operator`], which picks the
+//! cotangent Laplacian for edge-manifold meshes and the tufted intrinsic-Delaunay Laplacian
+//! ([`super::tufted`]) for non-manifold ones (and point clouds, whose meshes are).
 
 use faer::sparse::{SparseColMat, Triplet};
+use serde::{Deserialize, Serialize};
 
-use crate::mesh::{cross, dot, norm, sub, Mesh};
+use super::tufted::{tufted_laplacian, TuftedParams};
+use crate::mesh::{cross, dot, norm, sub, Mesh, POINT_CLOUD_COVER};
+
+/// Which discrete Laplacian [`surface_operator`] chose.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum LaplacianKind {
+    /// The cotangent Laplacian of the mesh itself ([`cotan_laplacian`], [`vertex_lumped_mass`]).
+    Cotan,
+    /// The tufted intrinsic-Delaunay Laplacian ([`tufted_laplacian`]), for meshes with an edge
+    /// shared by more than two faces (non-manifold meshes, point-cloud surfaces).
+    Tufted,
+}
+
+/// The Laplacian of a mesh as weights and lumped masses (see [`surface_operator`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurfaceOperator {
+    /// Which Laplacian this is.
+    pub kind: LaplacianKind,
+    /// Edge weights `(i, j, w)` to be summed: `L_ij = −Σ w`, `L_ii = Σ_j Σ w`.
+    pub weights: Vec<(usize, usize, f64)>,
+    /// Lumped mass per vertex (0 on vertices in no face).
+    pub mass: Vec<f64>,
+}
+
+impl SurfaceOperator {
+    /// The stiffness matrix `L` as a sparse CSC matrix (both triangles stored).
+    pub fn stiffness(&self) -> SparseColMat<usize, f64> {
+        weights_matrix(self.mass.len(), &self.weights)
+    }
+
+    /// Total mass: the area the operator sees.
+    pub fn total_mass(&self) -> f64 {
+        self.mass.iter().sum()
+    }
+}
+
+/// True when some edge of `mesh` is shared by more than two faces.
+///
+/// ```
+/// use shapeforest::{mesh::Mesh, spectral::has_non_manifold_edge};
+/// let v = vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]];
+/// assert!(!has_non_manifold_edge(&Mesh::new(v.clone(), vec![[0, 1, 2], [1, 0, 3]]).unwrap()));
+/// assert!(has_non_manifold_edge(&Mesh::new(v, vec![[0, 1, 2], [1, 0, 3], [0, 1, 4]]).unwrap()));
+/// ```
+pub fn has_non_manifold_edge(mesh: &Mesh) -> bool {
+    let mut edges: Vec<(usize, usize)> = mesh
+        .faces
+        .iter()
+        .flat_map(|f| (0..3).map(move |c| (f[c].min(f[(c + 1) % 3]), f[c].max(f[(c + 1) % 3]))))
+        .collect();
+    edges.sort_unstable();
+    edges.windows(3).any(|w| w[0] == w[2])
+}
+
+/// The Laplacian the spectral and geodesic code use on `mesh`: the cotangent Laplacian when every
+/// edge has at most two faces (the mesh is used as it is, as before), otherwise the tufted
+/// intrinsic-Delaunay Laplacian of Sharp & Crane 2020 with its default mollification, whose
+/// weights are non-negative and whose `M + tL` is positive definite whatever the soup.
+///
+/// ```
+/// use shapeforest::{spectral::{surface_operator, LaplacianKind}, synth::icosphere};
+/// let op = surface_operator(&icosphere(2, 1.0));
+/// assert_eq!(op.kind, LaplacianKind::Cotan);
+/// ```
+pub fn surface_operator(mesh: &Mesh) -> SurfaceOperator {
+    if let Some(multiplicity) = mesh.point_cloud_multiplicity() {
+        // the paper's point-cloud Laplacian: every fan's triangle, so a face found in m fans
+        // enters m times, and the result divided by the cover
+        let soup: Vec<[usize; 3]> = mesh
+            .faces
+            .iter()
+            .zip(multiplicity)
+            .flat_map(|(f, &m)| std::iter::repeat_n(*f, m as usize))
+            .collect();
+        if let Ok(t) = tufted_laplacian(&mesh.vertices, &soup, TuftedParams::default()) {
+            let s = 1.0 / POINT_CLOUD_COVER;
+            return SurfaceOperator {
+                kind: LaplacianKind::Tufted,
+                weights: t.weights.into_iter().map(|(i, j, w)| (i, j, w * s)).collect(),
+                mass: t.mass.into_iter().map(|m| m * s).collect(),
+            };
+        }
+    }
+    if has_non_manifold_edge(mesh) {
+        // A valid Mesh can only fail here when every edge has length zero: then the cotan
+        // operator (empty) lets the callers report the zero area.
+        if let Ok(t) = tufted_laplacian(&mesh.vertices, &mesh.faces, TuftedParams::default()) {
+            return SurfaceOperator { kind: LaplacianKind::Tufted, weights: t.weights, mass: t.mass };
+        }
+    }
+    SurfaceOperator {
+        kind: LaplacianKind::Cotan,
+        weights: cotan_weights(mesh),
+        mass: vertex_lumped_mass(mesh),
+    }
+}
+
+fn weights_matrix(n: usize, weights: &[(usize, usize, f64)]) -> SparseColMat<usize, f64> {
+    let mut triplets = Vec::with_capacity(weights.len() * 4);
+    for &(i, j, w) in weights {
+        triplets.push(Triplet::new(i, j, -w));
+        triplets.push(Triplet::new(j, i, -w));
+        triplets.push(Triplet::new(i, i, w));
+        triplets.push(Triplet::new(j, j, w));
+    }
+    SparseColMat::try_new_from_triplets(n, n, &triplets)
+        .expect("Laplacian indices are validated by Mesh::new")
+}
 
 /// Cotangent of the angle between `u` and `v`, or `None` for a degenerate (zero-area) corner.
 #[inline]
@@ -54,17 +164,7 @@ pub fn cotan_weights(mesh: &Mesh) -> Vec<(usize, usize, f64)> {
 /// }
 /// ```
 pub fn cotan_laplacian(mesh: &Mesh) -> SparseColMat<usize, f64> {
-    let n = mesh.n_vertices();
-    let weights = cotan_weights(mesh);
-    let mut triplets = Vec::with_capacity(weights.len() * 4);
-    for &(i, j, w) in &weights {
-        triplets.push(Triplet::new(i, j, -w));
-        triplets.push(Triplet::new(j, i, -w));
-        triplets.push(Triplet::new(i, i, w));
-        triplets.push(Triplet::new(j, j, w));
-    }
-    SparseColMat::try_new_from_triplets(n, n, &triplets)
-        .expect("cotan_laplacian: indices are validated by Mesh::new")
+    weights_matrix(mesh.n_vertices(), &cotan_weights(mesh))
 }
 
 /// Lumped (barycentric) vertex mass: a third of the area of each incident triangle.

@@ -3,6 +3,10 @@
 //! - [`cotan_laplacian`]: the symmetric positive semi-definite cotangent stiffness matrix `L`
 //!   (`L_ij = -(cot α_ij + cot β_ij)/2`, rows summing to zero);
 //! - [`vertex_lumped_mass`]: the lumped (barycentric) mass, a third of the incident triangle areas;
+//! - [`tufted_laplacian`] / [`point_cloud_laplacian`]: the tufted intrinsic-Delaunay Laplacian of
+//!   Sharp & Crane 2020 for non-manifold meshes, soups and point clouds ([`tufted`]);
+//!   [`surface_operator`] picks it for meshes with non-manifold edges, the cotangent Laplacian
+//!   otherwise, and is what the solver (and the heat method) use;
 //! - [`Spectrum`]: the first K eigenpairs of `L φ = λ M φ`;
 //! - [`compute_spectrum`] / [`LaplaceBeltramiSolver`]: the sparse eigensolver (shift-inverted
 //!   block Lanczos with exact null space and verification, see [`solver`]), with
@@ -23,15 +27,20 @@ mod lanczos;
 mod laplacian;
 pub mod solver;
 mod spectrum;
+pub mod tufted;
 
 pub use cache::{spectrum_cached, SpectrumCache};
 pub use dense::dense_spectrum;
-pub use laplacian::{cotan_laplacian, cotan_weights, vertex_lumped_mass};
+pub use laplacian::{
+    cotan_laplacian, cotan_weights, has_non_manifold_edge, surface_operator, vertex_lumped_mass,
+    LaplacianKind, SurfaceOperator,
+};
 pub use solver::{
     compute_spectrum, relative_residuals, LaplaceBeltramiSolver, SpectrumMethod, SpectrumParams,
     SpectrumReport, SOLVER_VERSION,
 };
 pub use spectrum::Spectrum;
+pub use tufted::{point_cloud_laplacian, tufted_laplacian, IntrinsicLaplacian, TuftedError, TuftedParams};
 
 use std::path::PathBuf;
 

@@ -48,11 +48,12 @@ use serde::{Deserialize, Serialize};
 
 use super::cholesky::{numeric_llt, supernodal_symbolic};
 use super::lanczos::{BlockLanczos, LanczosFailure};
-use super::{cotan_laplacian, cotan_weights, vertex_lumped_mass, SpectralError, Spectrum};
+use super::{surface_operator, LaplacianKind, SpectralError, Spectrum, SurfaceOperator};
 use crate::mesh::{Mesh, UnionFind};
 
 /// Version of the numerical method; part of the spectrum cache key, bump it when results change.
-pub const SOLVER_VERSION: u32 = 1;
+/// (2: meshes with non-manifold edges use the tufted Laplacian.)
+pub const SOLVER_VERSION: u32 = 2;
 
 /// Relative mass floor: active vertices get at least `MASS_FLOOR / n` of the unit total area.
 const MASS_FLOOR: f64 = 1e-12;
@@ -237,12 +238,15 @@ impl LaplaceBeltramiSolver {
     pub fn new(mesh: &Mesh, params: &SpectrumParams) -> Result<Self, SpectralError> {
         params.check()?;
         let n = mesh.n_vertices();
-        let area = mesh.surface_area();
+        let operator = surface_operator(mesh);
+        let area = match operator.kind {
+            LaplacianKind::Cotan => mesh.surface_area(),
+            LaplacianKind::Tufted => operator.total_mass(),
+        };
         if !(area.is_finite() && area > 0.0) {
             return Err(SpectralError::ZeroArea);
         }
-        let raw_mass = vertex_lumped_mass(mesh);
-        let weights = cotan_weights(mesh);
+        let SurfaceOperator { weights, mass: raw_mass, .. } = operator;
         let mut has_stiffness = vec![false; n];
         for &(i, j, _) in &weights {
             has_stiffness[i] = true;
@@ -703,7 +707,7 @@ pub fn relative_residuals(mesh: &Mesh, spectrum: &Spectrum) -> Result<Vec<f64>, 
     {
         return Err(SpectralError::SizeMismatch { mesh: n, spectrum: spectrum.n_vertices });
     }
-    let l = cotan_laplacian(mesh);
+    let l = surface_operator(mesh).stiffness();
     let k = spectrum.k();
     let mut lphi = Mat::<f64>::zeros(n, k);
     sparse_dense_matmul(lphi.as_mut(), Accum::Replace, l.as_ref(), spectrum.vectors(), 1.0, Par::Seq);

@@ -81,7 +81,7 @@ pub fn icosphere(subdivisions: u32, radius: f64) -> Mesh {
     for v in vertices.iter_mut() {
         *v = [v[0] * radius, v[1] * radius, v[2] * radius];
     }
-    Mesh { vertices, faces }
+    Mesh { vertices, faces, face_multiplicity: Vec::new() }
 }
 
 /// A flat rectangular grid `[0, width] × [0, height]` in the z = 0 plane with `nx × ny`
@@ -115,7 +115,7 @@ pub fn grid_plane(nx: usize, ny: usize, width: f64, height: f64) -> Mesh {
             }
         }
     }
-    Mesh { vertices, faces }
+    Mesh { vertices, faces, face_multiplicity: Vec::new() }
 }
 
 /// A torus with major radius `major`, minor radius `minor`, and `nu × nv` vertices
@@ -146,7 +146,7 @@ pub fn torus(nu: usize, nv: usize, major: f64, minor: f64) -> Mesh {
             faces.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
         }
     }
-    Mesh { vertices, faces }
+    Mesh { vertices, faces, face_multiplicity: Vec::new() }
 }
 
 /// The same surface with its vertices in another (seeded, random) order, as a shape
