@@ -124,7 +124,7 @@ def test_training_with_label_arrays_skips_unlabelled_vertices(creatures, capsys)
 def test_bad_input_raises_with_the_cli_messages(tmp_path, forest, creatures):
     with pytest.raises(ValueError, match=r"vertices must be an \(n, 3\) array"):
         sf.Mesh(np.zeros((4, 2)), [[0, 1, 2]])
-    with pytest.raises(sf.ShapeforestError, match="point clouds are not supported"):
+    with pytest.raises(sf.ShapeforestError, match="4 vertices but no faces"):
         sf.Mesh(np.zeros((4, 3)), np.zeros((0, 3), dtype=int))
     with pytest.raises(sf.ShapeforestError, match="face 0 refers to vertex 7, but the mesh has 3 vertices"):
         sf.Mesh(np.eye(3), [[0, 1, 7]])
