@@ -5,8 +5,7 @@
 
 use std::io::Write;
 
-use super::report::{check_vertex, MeshFormat, MeshReport, Parts};
-use super::text::{capped_capacity, gunzip_if_needed, parse_xyz, Lines};
+use super::report::{MeshFormat, MeshReport, Parts};
 use super::{Mesh, MeshError};
 use crate::limits::Limits;
 
@@ -26,13 +25,8 @@ pub fn parse_xyz_cloud(bytes: &[u8]) -> Result<(Mesh, MeshReport), MeshError> {
 
 /// The points of `.xyz` data, before the mesh is built.
 pub(crate) fn xyz_parts(bytes: &[u8]) -> Result<Parts, MeshError> {
-    let bytes = gunzip_if_needed(bytes)?;
-    let mut vertices = Vec::with_capacity(capped_capacity(usize::MAX, bytes.len(), 6));
-    for (line, text) in Lines::new(&bytes) {
-        let p = parse_xyz(line, text)?;
-        check_vertex(vertices.len(), p).map_err(|e| e.at_line(line))?;
-        vertices.push(p);
-    }
+    // One point per line, as in a TOSCA `.vert` file: the same reader.
+    let vertices = super::parse_vert(bytes)?;
     if vertices.is_empty() {
         return Err(MeshError::Empty { vertices: 0, faces: 0 });
     }
