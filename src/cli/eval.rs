@@ -139,7 +139,7 @@ pub struct EvalArgs {
     pub own_area: bool,
     /// Holes of a perturbed scan whose perimeter is at most this fraction of the reference's
     /// √area are closed before its spectrum is computed (0: leave every hole open).
-    #[arg(long, default_value_t = 0.35, value_name = "F")]
+    #[arg(long, default_value_t = shapeforest::regularizer::ScanPart::FILL_PERIMETER, value_name = "F")]
     pub fill_perimeter: f64,
     /// Augment every training set with perturbed copies of its shapes: `partial-view`,
     /// `holes:N:R` or `crop:R` (repeatable; --augment-copies copies of each shape per kind).

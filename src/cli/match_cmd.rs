@@ -191,14 +191,20 @@ pub fn run(args: MatchArgs) -> Result<()> {
             scan.n_vertices()
         );
     }
+    // As in `eval`: small holes closed for the spectrum, read back on the part's vertices.
+    let ref_area = reference.surface_area();
+    let spectrum_mesh = match args.to {
+        None => part.filled(ScanPart::FILL_PERIMETER * ref_area.sqrt()).unwrap_or_else(|| part.mesh.clone()),
+        Some(_) => part.mesh.clone(),
+    };
     let t0 = Instant::now();
-    let scan_spectrum = spectrum(&part.mesh, &sp_params, cache.as_ref(), &args.mesh)?;
+    let scan_spectrum = spectrum(&spectrum_mesh, &sp_params, cache.as_ref(), &args.mesh)?;
     let spectrum_scan_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
     let ref_spectrum = Arc::new(spectrum(&reference, &sp_params, cache.as_ref(), &args.reference)?);
     let spectrum_ref_s = t0.elapsed().as_secs_f64();
     let (scan_spectrum, scale_ratio) = if args.to.is_none() {
-        let (sp, r) = part.normalise(scan_spectrum, reference.surface_area());
+        let (sp, r) = part.spectrum_for_matching(&spectrum_mesh, scan_spectrum, ref_area);
         (Arc::new(sp), r)
     } else {
         (Arc::new(scan_spectrum), 1.0)

@@ -144,7 +144,7 @@ impl Default for ProtocolParams {
             skip_baseline: false,
             largest_component: true,
             partial_scale: true,
-            fill_holes: Some(0.35),
+            fill_holes: Some(ScanPart::FILL_PERIMETER),
             augment: Vec::new(),
             augment_copies: 4,
         }

@@ -23,6 +23,10 @@ pub struct ScanPart {
 }
 
 impl ScanPart {
+    /// Holes of a scan whose perimeter is at most this fraction of the reference's `√area` are
+    /// closed before its spectrum is computed (a round hole of radius ~0.055·√area).
+    pub const FILL_PERIMETER: f64 = 0.35;
+
     /// The part of `scan` to match: its largest connected component when it has several.
     pub fn of(scan: &Arc<Mesh>) -> ScanPart {
         let components = crate::mesh::vertex_components(scan).1.len();
@@ -30,14 +34,6 @@ impl ScanPart {
             Some((mesh, kept)) => ScanPart { mesh: Arc::new(mesh), kept: Some(kept), components },
             None => ScanPart { mesh: scan.clone(), kept: None, components },
         }
-    }
-
-    /// The part's spectrum normalised for matching against a reference of area
-    /// `reference_area` (same units), and the ratio of the area used to the part's own.
-    pub fn normalise(&self, spectrum: Spectrum, reference_area: f64) -> (Spectrum, f64) {
-        let area = normalising_area(&self.mesh, reference_area);
-        let ratio = area / spectrum.area;
-        (spectrum.renormalised(area), ratio)
     }
 
     /// The mesh the part's spectrum is computed on: the part with its holes of perimeter at
