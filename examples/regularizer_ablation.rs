@@ -163,7 +163,8 @@ fn main() -> Result<()> {
         let dense = regularize(&test_shape, &reference, &prediction, None, params)?;
         Ok((dense, t0.elapsed().as_secs_f64()))
     };
-    let (plain, plain_s) = run(&RegularizerParams { growth: None, ..Default::default() })?;
+    let (plain, plain_s) =
+        run(&RegularizerParams { growth: None, spectral_maps: true, ..Default::default() })?;
     let growth = |g: AnchorGrowthParams| RegularizerParams { growth: Some(g), ..Default::default() };
     let distances_only =
         AnchorGrowthParams { smoothness: 0.0, orientation: 0.0, reorient: 0.0, ..Default::default() };
@@ -191,8 +192,10 @@ fn main() -> Result<()> {
     println!("|---|---:|---:|---:|---:|---:|");
     let raw: Vec<usize> = plain.forest_map.iter().map(|m| m.unwrap_or(0)).collect();
     row("forest, raw MAP", &raw, None)?;
-    row("regularised fmap, spectral nearest neighbour", &plain.fmap_map, None)?;
-    row("regularised fmap, among the forest's candidates", &plain.spectral_map, None)?;
+    let fmap_map = plain.fmap_map.as_deref().expect("asked for with spectral_maps");
+    let spectral_map = plain.spectral_map.as_deref().expect("asked for with spectral_maps");
+    row("regularised fmap, spectral nearest neighbour", fmap_map, None)?;
+    row("regularised fmap, among the forest's candidates", spectral_map, None)?;
     row("game anchors only", &plain.map, Some(plain_s))?;
     row("anchor growth, distances only", &grown.map, Some(grown_s))?;
     row("+ smoothing", &smoothed.map, Some(smoothed_s))?;

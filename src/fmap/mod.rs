@@ -380,6 +380,42 @@ pub fn point_to_point(
     Ok(nearest_rows(emb.as_ref(), basis(reference, c.ncols())))
 }
 
+/// [`point_to_point`] for the test vertices `rows` only: entry `i` is the reference vertex
+/// matched to test vertex `rows[i]`. The search costs `rows.len()` queries instead of one per
+/// test vertex, for callers that need the spectral map only where nothing else places a vertex.
+///
+/// ```
+/// use shapeforest::{fmap::{point_to_point, point_to_point_rows}, spectral::dense_spectrum, synth::icosphere};
+/// let s = dense_spectrum(&icosphere(2, 1.0), 9).unwrap();
+/// let c = faer::Mat::<f64>::identity(9, 9);
+/// let all = point_to_point(&s, &s, c.as_ref()).unwrap();
+/// assert_eq!(point_to_point_rows(&s, &s, c.as_ref(), &[3, 17]).unwrap(), vec![all[3], all[17]]);
+/// ```
+pub fn point_to_point_rows(
+    test: &Spectrum,
+    reference: &Spectrum,
+    c: MatRef<'_, f64>,
+    rows: &[usize],
+) -> Result<Vec<usize>, FmapError> {
+    let (kt, kr) = (c.nrows(), c.ncols());
+    check_basis("test", test, kt)?;
+    check_basis("reference", reference, kr)?;
+    if let Some(&bad) = rows.iter().find(|&&m| m >= test.n_vertices) {
+        return Err(FmapError::SizeMismatch(format!(
+            "test vertex {bad} asked for, the test shape has {}",
+            test.n_vertices
+        )));
+    }
+    if rows.is_empty() {
+        return Ok(Vec::new());
+    }
+    let phi = basis(test, kt);
+    let sub = Mat::from_fn(rows.len(), kt, |i, j| phi[(rows[i], j)]);
+    let mut emb = Mat::zeros(rows.len(), kr);
+    matmul(emb.as_mut(), Accum::Replace, sub.as_ref(), c, 1.0, Par::Seq);
+    Ok(nearest_rows(emb.as_ref(), basis(reference, kr)))
+}
+
 /// The test shape's spectral embedding mapped into the reference basis, `Φ_M[:, :k_test] C`
 /// (`n_test × k_ref`), after checking the basis sizes.
 fn pulled_back_embedding(

@@ -435,21 +435,29 @@ impl HeatMethodSolver {
             }
         }
 
-        // 2. normalised gradient, 3. divergence (right-hand side of L φ = −div X)
+        // 2. normalised gradient, 3. divergence (right-hand side of L φ = −div X). Columns go
+        // in groups of COLUMN_GROUP, each face's operator read once per group: the per-face
+        // data (144 bytes) would otherwise stream from memory once per column. Every column's
+        // arithmetic and face order are those of a one-column pass, so the result is the same.
+        const COLUMN_GROUP: usize = 8;
         let mut phi = vec![0.0; n * s];
-        phi.par_chunks_mut(n).zip(heat.par_chunks(n)).for_each(|(rhs, u)| {
+        phi.par_chunks_mut(n * COLUMN_GROUP).zip(heat.par_chunks(n * COLUMN_GROUP)).for_each(|(rhs, u)| {
+            let cols = rhs.len() / n;
             for (f, op) in self.faces.iter().zip(&self.face_operators) {
-                let g = op.gradient([u[f[0]], u[f[1]], u[f[2]]]);
-                let m = g[0].abs().max(g[1].abs()).max(g[2].abs());
-                if !(m > 0.0) || !m.is_finite() {
-                    continue;
-                }
-                // X = −∇u/|∇u|; rhs = −div X, so rhs_i += w_i · ∇u/|∇u| (scaled by 1/m first so
-                // that tiny far-field gradients do not underflow when squared)
-                let inv_m = 1.0 / m;
-                let k = inv_m / norm([g[0] * inv_m, g[1] * inv_m, g[2] * inv_m]);
-                for (&v, w) in f.iter().zip(&op.divergence_weight) {
-                    rhs[v] += dot(*w, g) * k;
+                for c in 0..cols {
+                    let (u, rhs) = (&u[c * n..(c + 1) * n], &mut rhs[c * n..(c + 1) * n]);
+                    let g = op.gradient([u[f[0]], u[f[1]], u[f[2]]]);
+                    let m = g[0].abs().max(g[1].abs()).max(g[2].abs());
+                    if !(m > 0.0) || !m.is_finite() {
+                        continue;
+                    }
+                    // X = −∇u/|∇u|; rhs = −div X, so rhs_i += w_i · ∇u/|∇u| (scaled by 1/m first
+                    // so that tiny far-field gradients do not underflow when squared)
+                    let inv_m = 1.0 / m;
+                    let k = inv_m / norm([g[0] * inv_m, g[1] * inv_m, g[2] * inv_m]);
+                    for (&v, w) in f.iter().zip(&op.divergence_weight) {
+                        rhs[v] += dot(*w, g) * k;
+                    }
                 }
             }
         });

@@ -4,29 +4,29 @@
 use super::{smoothing::smooth_placement, *};
 
 /// For each test vertex, the candidate reference vertex whose normalised distances to the
-/// anchors best match the vertex's own (weighted L1); `fallback` where there is no candidate
-/// or no anchor.
+/// anchors best match the vertex's own (weighted L1); `None` where there is no candidate at a
+/// finite cost, or no anchor.
 pub(super) fn anchor_consistent_map(
     test_fields: &Mat<f64>,
     ref_fields: &Mat<f64>,
     weights: &[f64],
     posterior: &LabelledPosterior<'_>,
-    fallback: &[usize],
-) -> Vec<usize> {
+) -> Vec<Option<usize>> {
     use rayon::prelude::*;
     let s = weights.len();
+    let n = posterior.n_test_vertices();
     if s == 0 {
-        return fallback.to_vec();
+        return vec![None; n];
     }
-    (0..fallback.len())
+    (0..n)
         .into_par_iter()
         .map(|m| {
-            let mut best = (f64::INFINITY, fallback[m]);
+            let mut best = (f64::INFINITY, None);
             posterior.for_each_entry(m, &mut |r, _| {
                 let cost: f64 =
                     (0..s).map(|j| weights[j] * (test_fields[(m, j)] - ref_fields[(r, j)]).abs()).sum();
                 if cost < best.0 {
-                    best = (cost, r);
+                    best = (cost, Some(r));
                 }
             });
             best.1
@@ -52,12 +52,12 @@ pub(super) fn grow_anchors(
         return Ok(Grown { map: start, anchors: 0, orientation: score, reoriented: false });
     }
     let a_fields = test.heat.distances_from_many(&samples)?;
-    let mut first: Vec<usize> = samples.iter().map(|&v| start[v]).collect();
-    first.sort_unstable();
-    first.dedup();
-    let setup =
-        GrowthSetup { first_cols: reference_columns(reference, &first)?, samples, a_fields, orientation };
-    let (map, anchors) = grow_rounds(test, reference, posterior, start.clone(), p, p.orientation, &setup)?;
+    let setup = GrowthSetup { samples, a_fields, orientation };
+    // Reference columns are shared by both runs: the second run's rounds mostly revisit the
+    // targets of the first, and each costs a heat-method solve.
+    let mut ref_cols = std::collections::HashMap::new();
+    let (map, anchors) =
+        grow_rounds(test, reference, posterior, start.clone(), p, p.orientation, &setup, &mut ref_cols)?;
     let score = setup.orientation.mean_agreement(&map);
     if p.reorient <= 0.0 {
         return Ok(Grown { map, anchors, orientation: score, reoriented: false });
@@ -65,7 +65,8 @@ pub(super) fn grow_anchors(
     // The second hypothesis: a first round placed with a strong orientation term, which puts
     // every vertex on the side its orientation descriptor says (undoing a mirror image of the
     // game's anchors, whole or in part), then the ordinary rounds. The better oriented map wins.
-    let (second, second_anchors) = grow_rounds(test, reference, posterior, start, p, p.reorient, &setup)?;
+    let (second, second_anchors) =
+        grow_rounds(test, reference, posterior, start, p, p.reorient, &setup, &mut ref_cols)?;
     let second_score = setup.orientation.mean_agreement(&second);
     if second_score > score {
         Ok(Grown { map: second, anchors: second_anchors, orientation: second_score, reoriented: true })
@@ -80,8 +81,6 @@ struct GrowthSetup {
     samples: Vec<usize>,
     /// Distances from the samples on the test shape (`n_test × samples`, not normalised).
     a_fields: Mat<f64>,
-    /// Normalised reference distance columns of the first round's targets.
-    first_cols: std::collections::HashMap<usize, Vec<f32>>,
     /// Orientation descriptors of the test and reference shapes.
     orientation: Orientation,
 }
@@ -113,7 +112,9 @@ pub(super) struct Grown {
     pub(super) reoriented: bool,
 }
 
-/// The rounds of anchor growth from `start`.
+/// The rounds of anchor growth from `start`. `ref_cols` holds the normalised reference
+/// distance columns computed so far (by target vertex); the missing ones are added.
+#[allow(clippy::too_many_arguments)]
 fn grow_rounds(
     test: &PreparedShape,
     reference: &PreparedShape,
@@ -122,15 +123,14 @@ fn grow_rounds(
     p: &AnchorGrowthParams,
     first_orientation: f64,
     setup: &GrowthSetup,
+    ref_cols: &mut std::collections::HashMap<usize, Vec<f32>>,
 ) -> Result<(Vec<usize>, usize), Error> {
     use rayon::prelude::*;
     let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
-    let GrowthSetup { samples, a_fields, first_cols, orientation } = setup;
+    let GrowthSetup { samples, a_fields, orientation } = setup;
     let s = samples.len();
     let ts = 1.0 / test.sqrt_area();
     let a_col = |j: usize| a_fields.col(j);
-    // Reference-side fields, computed once per distinct target and dropped when unused.
-    let mut ref_cols = first_cols.clone();
     let mut map = start;
     let n_keep = ((s as f64 * p.keep).ceil() as usize).clamp(3, s);
     let mut used = 0;
@@ -142,7 +142,6 @@ fn grow_rounds(
         if !missing.is_empty() {
             ref_cols.extend(reference_columns(reference, &missing)?);
         }
-        ref_cols.retain(|t, _| targets.contains(t));
         // Consistency of each pair with the others: median distance disagreement.
         let mut consistency: Vec<(f64, usize)> = (0..s)
             .into_par_iter()
