@@ -67,6 +67,23 @@ fn forest_beats_wks_knn_on_held_out_shape() {
 }
 
 #[test]
+fn wks_knn_tree_search_finds_the_brute_force_neighbours() {
+    // The kd-tree on a projection must return exactly the exhaustive search's neighbours.
+    let f = family(4);
+    let set = set_of(&f, &[0, 1, 2]);
+    let forest = RandomForest::params().n_trees(2).seed(1).fit(&set).unwrap();
+    let knn = WksKnn::fit(&set, &WksParams::default(), forest.energy_grid().range, forest.k()).unwrap();
+    for k in [1, 7] {
+        let (tree, brute) =
+            (knn.predict(&f.spectra[3], k).unwrap(), knn.predict_brute_force(&f.spectra[3], k).unwrap());
+        assert_eq!(tree.n_vertices(), brute.n_vertices());
+        let differ = (0..tree.n_vertices()).filter(|&v| tree.posterior(v) != brute.posterior(v)).count();
+        // ties at round-off may order two equidistant neighbours differently: none expected here
+        assert_eq!(differ, 0, "k = {k}: {differ} of {} vertices differ", tree.n_vertices());
+    }
+}
+
+#[test]
 fn deterministic_given_seed_and_posteriors_sum_to_one() {
     let f = family(3);
     let set = set_of(&f, &[0, 1]);
