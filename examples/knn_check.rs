@@ -3,7 +3,8 @@
 //! labels differ between the two (0 expected, up to ties at round-off).
 //!
 //! `cargo run --release --example knn_check -- [DATA_DIR] [CLASS] [N_TRAIN] [TEST] [K] [--brute-force]`
-//! (defaults: ../shared/data/tosca, cat, 6, cat10, 10). Spectra are cached in the system's
+//! (defaults: ../shared/data/tosca, cat, 6, cat10, 10): the first N_TRAIN shapes CLASSn of the
+//! folder in name order, TEST left out. Spectra are cached in the system's
 //! temporary folder (`shapeforest-spectra`).
 
 use std::{path::PathBuf, sync::Arc, time::Instant};
@@ -36,9 +37,15 @@ fn main() -> Result<()> {
         let mesh = read_mesh(&path).with_context(|| format!("reading {}", path.display()))?;
         Ok((mesh.n_vertices(), Arc::new(cache.get_or_compute(&mesh, &params)?)))
     };
+    // The first N_TRAIN shapes of the class in name order, the test shape left out.
+    let mut names: Vec<String> = std::fs::read_dir(&dir)?
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter_map(|f| f.strip_suffix(".off").map(str::to_string))
+        .filter(|f| f.starts_with(class) && f[class.len()..].chars().all(|c| c.is_ascii_digit()) && *f != test_name)
+        .collect();
+    names.sort();
     let mut shapes = Vec::new();
-    for i in 0..n_train {
-        let name = format!("{class}{i}");
+    for name in names.into_iter().take(n_train) {
         shapes.push((name.clone(), load(&name)?.1));
     }
     let set = TrainingSet::same_indexing(shapes)?;

@@ -4,7 +4,10 @@
 # Installs the peers from PyPI into a local virtualenv (.venv-bench, ignored by git) the first
 # time; needs python3 with the venv module and a network connection for that first run.
 #   scripts/bench-peers.sh [extra `shapeforest bench --out` arguments]
-#   e.g. scripts/bench-peers.sh --sizes 5000,20000 --data /path/to/data --repeat 3 --forest
+#   e.g. scripts/bench-peers.sh --sizes 5000,20000 --data /path/to/data --forest
+# Best of 3 runs unless --repeat N is given. The machine's load average is printed before our
+# runs, between ours and the peer's, and after the peer's, and kept in the report: run it on a
+# quiet machine (load below 1, no build or test running), or the ratios mean little.
 # Set BENCH_DIR=DIR to keep the meshes and JSON results there (default: a temporary folder).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -31,7 +34,14 @@ else
   trap 'rm -rf "$work"' EXIT
 fi
 echo "# $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo 2>/dev/null | cut -d: -f2 | sed 's/^ //')" >&2
-./target/release/shapeforest bench --out "$work" "$@"
+load() { cut -d' ' -f1-3 /proc/loadavg 2>/dev/null || echo unknown; }
+repeat_args=(--repeat 3)
+for a in "$@"; do
+  case $a in --repeat|--repeat=*) repeat_args=() ;; esac
+done
+echo "# load average before: $(load)" >&2
+./target/release/shapeforest bench --out "$work" "${repeat_args[@]}" "$@"
+echo "# load average after shapeforest, before the peer: $(load)" >&2
 # BLAS threads of the peer: 1 by default. scipy's eigsh is SuperLU (sequential) plus ARPACK, and
 # on a 2-core machine shared with other work, 2 OpenBLAS threads made it 3-10x slower (spinning
 # threads) than 1; set PEER_THREADS to try more.
@@ -39,4 +49,8 @@ peer_threads=${PEER_THREADS:-1}
 echo "# peer BLAS threads: $peer_threads" >&2
 OMP_NUM_THREADS=$peer_threads OPENBLAS_NUM_THREADS=$peer_threads MKL_NUM_THREADS=$peer_threads \
   "$venv/bin/python" scripts/peer_bench.py "$work/manifest.json" "$work/peer.json"
+peer_load_after=$(load)
+echo "# load average after the peer: $peer_load_after" >&2
 ./target/release/shapeforest bench --report "$work"
+echo
+echo "Load average after the peer's runs: $peer_load_after."

@@ -109,6 +109,17 @@ pub struct OurResults {
     /// Forest figures, when `--forest` was given.
     #[serde(default)]
     pub forest: Option<ForestResults>,
+    /// The machine's load averages (1, 5, 15 minutes) before and after our runs, where the
+    /// system reports them (`/proc/loadavg`): figures measured under load are not comparable.
+    #[serde(default)]
+    pub load_average: Vec<[f64; 3]>,
+}
+
+/// The 1-, 5- and 15-minute load averages from `/proc/loadavg` (`None` where absent).
+pub fn load_average() -> Option<[f64; 3]> {
+    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
+    let mut it = text.split_whitespace().map(|x| x.parse::<f64>().ok());
+    Some([it.next()??, it.next()??, it.next()??])
 }
 
 /// Our timings on one mesh.
@@ -287,6 +298,7 @@ fn run_out(args: &BenchArgs, out: &Path) -> Result<()> {
         repeat: args.repeat.max(1),
         meshes: Vec::new(),
         forest: None,
+        load_average: load_average().into_iter().collect(),
     };
     for (name, mesh) in &meshes {
         let n = mesh.n_vertices();
@@ -334,8 +346,9 @@ fn run_out(args: &BenchArgs, out: &Path) -> Result<()> {
     }
     if args.forest {
         ours.forest = Some(bench_forest(args.k)?);
-        write_json(&out.join("shapeforest.json"), &ours)?;
     }
+    ours.load_average.extend(load_average());
+    write_json(&out.join("shapeforest.json"), &ours)?;
     eprintln!(
         "wrote {} meshes, manifest.json and shapeforest.json to {}",
         manifest.meshes.len(),
@@ -424,6 +437,13 @@ pub fn report(dir: &Path) -> Result<String> {
     let peer: PeerResults = read_json(&dir.join("peer.json"))?;
     let mut s = String::new();
     let versions: Vec<String> = peer.peer.iter().map(|(k, v)| format!("{k} {v}")).collect();
+    let loads: Vec<String> =
+        ours.load_average.iter().map(|l| format!("{:.2} {:.2} {:.2}", l[0], l[1], l[2])).collect();
+    writeln!(
+        s,
+        "Load average (1, 5, 15 min) before and after shapeforest's runs: {} (a quiet machine is below 1).\n",
+        if loads.is_empty() { "not recorded".to_string() } else { loads.join(" → ") }
+    )?;
     writeln!(
         s,
         "K = {} eigenpairs, shift σ = −0.01 on the unit-area mesh; times in seconds (best of {}), \

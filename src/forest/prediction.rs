@@ -15,6 +15,20 @@ pub struct Prediction {
     probs: Vec<f32>,
 }
 
+/// A prediction whose labels are reference vertex indices (a shared-indexing class) as a soft
+/// correspondence; for other label sets, read the labels through the reference's table first.
+impl crate::fmap::SoftCorrespondence for Prediction {
+    fn n_test_vertices(&self) -> usize {
+        self.n_vertices()
+    }
+    fn for_each_entry(&self, m: usize, f: &mut dyn FnMut(usize, f64)) {
+        let (labels, probs) = self.posterior(m);
+        for (&l, &p) in labels.iter().zip(probs) {
+            f(l as usize, p as f64);
+        }
+    }
+}
+
 impl Prediction {
     /// Builds a prediction from CSC-like arrays, checking that offsets are monotone and end at
     /// the array length, labels are `< n_labels` and strictly ascending within a vertex, and
