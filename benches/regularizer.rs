@@ -31,8 +31,9 @@ struct Case {
 }
 
 fn case(vertices: usize) -> Case {
-    let fam = creature_family(&CreatureParams { target_vertices: vertices, seed: 7, ..Default::default() }, 4)
-        .expect("creature family");
+    let fam =
+        creature_family(&CreatureParams { target_vertices: vertices, seed: 7, ..Default::default() }, 4)
+            .expect("creature family");
     let spectra: Vec<_> = fam
         .shapes
         .iter()
@@ -40,7 +41,8 @@ fn case(vertices: usize) -> Case {
         .collect();
     let set = TrainingSet::same_indexing((0..3).map(|i| (format!("pose{i}"), spectra[i].clone())))
         .expect("training set");
-    let forest = RandomForest::params().n_trees(15).seed(0).check().expect("params").fit(&set).expect("forest");
+    let forest =
+        RandomForest::params().n_trees(15).seed(0).check().expect("params").fit(&set).expect("forest");
     let prediction = forest.predict(&spectra[3]).expect("prediction");
     let prepare = |i: usize| {
         PreparedShape::new(Arc::new(fam.shapes[i].clone()), spectra[i].clone(), HeatParams::default())
@@ -114,7 +116,9 @@ fn bench(c: &mut Criterion) {
         g.throughput(Throughput::Elements(*n as u64));
         g.bench_with_input(BenchmarkId::from_parameter(n), case, |b, case| {
             b.iter(|| {
-                black_box(regularize(&case.test, &case.reference, &case.prediction, None, &params).expect("map"))
+                black_box(
+                    regularize(&case.test, &case.reference, &case.prediction, None, &params).expect("map"),
+                )
             })
         });
     }
@@ -126,7 +130,8 @@ fn bench(c: &mut Criterion) {
         g.bench_with_input(BenchmarkId::from_parameter(n), case, |b, case| {
             b.iter(|| {
                 black_box(
-                    sparse_matches(&case.test, &case.reference, &case.prediction, None, &params).expect("matches"),
+                    sparse_matches(&case.test, &case.reference, &case.prediction, None, &params)
+                        .expect("matches"),
                 )
             })
         });
@@ -139,8 +144,15 @@ fn bench(c: &mut Criterion) {
         g.bench_function(BenchmarkId::from_parameter(n), |b| {
             b.iter(|| {
                 black_box(
-                    game_theoretic_matching(&candidates, &d_test, n_test, &d_ref, n_ref, &GameMatcherParams::default())
-                        .expect("game"),
+                    game_theoretic_matching(
+                        &candidates,
+                        &d_test,
+                        n_test,
+                        &d_ref,
+                        n_ref,
+                        &GameMatcherParams::default(),
+                    )
+                    .expect("game"),
                 )
             })
         });
@@ -149,7 +161,8 @@ fn bench(c: &mut Criterion) {
 
     let mut g = group(c, "fmap_solve", 4);
     for (n, case) in &cases {
-        let sparse = sparse_matches(&case.test, &case.reference, &case.prediction, None, &params).expect("matches");
+        let sparse =
+            sparse_matches(&case.test, &case.reference, &case.prediction, None, &params).expect("matches");
         let weights: Vec<f64> = sparse.game.matches.iter().map(|m| m.weight).collect();
         let p = FmapParams::default();
         let (kt, kr) = (p.k_test, p.k_ref);

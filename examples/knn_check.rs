@@ -41,7 +41,9 @@ fn main() -> Result<()> {
     let mut names: Vec<String> = std::fs::read_dir(&dir)?
         .filter_map(|e| e.ok()?.file_name().into_string().ok())
         .filter_map(|f| f.strip_suffix(".off").map(str::to_string))
-        .filter(|f| f.starts_with(class) && f[class.len()..].chars().all(|c| c.is_ascii_digit()) && *f != test_name)
+        .filter(|f| {
+            f.starts_with(class) && f[class.len()..].chars().all(|c| c.is_ascii_digit()) && *f != test_name
+        })
         .collect();
     names.sort();
     let mut shapes = Vec::new();

@@ -106,8 +106,9 @@ struct FaceOperator {
 }
 
 impl FaceOperator {
-    /// Gradient of the linear interpolant of the corner values `u`.
-    #[inline]
+    /// Gradient of the linear interpolant of the corner values `u` (the solver computes it lane
+    /// by lane in [`divergence_of_normalised_gradient`]; the tests check both against this).
+    #[cfg(test)]
     fn gradient(&self, u: [f64; 3]) -> [f64; 3] {
         let [a, b, c] = self.hat_gradient;
         [
@@ -267,6 +268,40 @@ fn diagonal_of(a: &SparseColMat<usize, f64>) -> Vec<f64> {
 
 fn assembly_error(e: impl std::fmt::Debug) -> GeodesicError {
     GeodesicError::Factorization { matrix: "assembly", reason: format!("{e:?}") }
+}
+
+/// Columns processed side by side in the gradient and divergence step.
+const COLUMN_GROUP: usize = 8;
+
+/// One face's share of `−div X`, `X = −∇u/|∇u|`, for the `COLUMN_GROUP` interleaved columns of
+/// `u` (`u[v · COLUMN_GROUP + c]`), added into `rhs` (same layout): `rhs_i += w_i · ∇u/|∇u|`,
+/// with `∇u` scaled by `1/max|∇u_d|` first so that tiny far-field gradients do not underflow
+/// when squared. A face where a column's gradient is zero or not finite adds nothing to it.
+#[inline]
+fn divergence_of_normalised_gradient(op: &FaceOperator, f: &[usize; 3], u: &[f64], rhs: &mut [f64]) {
+    const G: usize = COLUMN_GROUP;
+    let [a, b, c] = op.hat_gradient;
+    let (u0, u1, u2) = (&u[f[0] * G..f[0] * G + G], &u[f[1] * G..f[1] * G + G], &u[f[2] * G..f[2] * G + G]);
+    let (mut g0, mut g1, mut g2, mut k) = ([0.0; G], [0.0; G], [0.0; G], [0.0; G]);
+    let mut valid = [false; G];
+    for l in 0..G {
+        // FaceOperator::gradient, lane by lane
+        g0[l] = u0[l] * a[0] + u1[l] * b[0] + u2[l] * c[0];
+        g1[l] = u0[l] * a[1] + u1[l] * b[1] + u2[l] * c[1];
+        g2[l] = u0[l] * a[2] + u1[l] * b[2] + u2[l] * c[2];
+        let m = g0[l].abs().max(g1[l].abs()).max(g2[l].abs());
+        valid[l] = m > 0.0 && m.is_finite();
+        let inv_m = 1.0 / m;
+        k[l] = inv_m / norm([g0[l] * inv_m, g1[l] * inv_m, g2[l] * inv_m]);
+    }
+    for (&v, w) in f.iter().zip(&op.divergence_weight) {
+        let out = &mut rhs[v * G..v * G + G];
+        for l in 0..G {
+            if valid[l] {
+                out[l] += dot(*w, [g0[l], g1[l], g2[l]]) * k[l];
+            }
+        }
+    }
 }
 
 impl HeatMethodSolver {
@@ -435,29 +470,27 @@ impl HeatMethodSolver {
             }
         }
 
-        // 2. normalised gradient, 3. divergence (right-hand side of L φ = −div X). Columns go
-        // in groups of COLUMN_GROUP, each face's operator read once per group: the per-face
-        // data (144 bytes) would otherwise stream from memory once per column. Every column's
-        // arithmetic and face order are those of a one-column pass, so the result is the same.
-        const COLUMN_GROUP: usize = 8;
+        // 2. normalised gradient, 3. divergence (right-hand side of L φ = −div X), in groups of
+        // COLUMN_GROUP columns interleaved vertex by vertex: each face's operator (144 bytes) is
+        // read once per group instead of once per column, and the lanes of a group are
+        // computed side by side (vectorisable). Every column's arithmetic, and the order in
+        // which faces add into a vertex, are those of a one-column pass: the same numbers.
         let mut phi = vec![0.0; n * s];
         phi.par_chunks_mut(n * COLUMN_GROUP).zip(heat.par_chunks(n * COLUMN_GROUP)).for_each(|(rhs, u)| {
             let cols = rhs.len() / n;
+            let mut ut = vec![0.0; n * COLUMN_GROUP];
+            for c in 0..cols {
+                for (v, &x) in u[c * n..(c + 1) * n].iter().enumerate() {
+                    ut[v * COLUMN_GROUP + c] = x;
+                }
+            }
+            let mut rt = vec![0.0; n * COLUMN_GROUP];
             for (f, op) in self.faces.iter().zip(&self.face_operators) {
-                for c in 0..cols {
-                    let (u, rhs) = (&u[c * n..(c + 1) * n], &mut rhs[c * n..(c + 1) * n]);
-                    let g = op.gradient([u[f[0]], u[f[1]], u[f[2]]]);
-                    let m = g[0].abs().max(g[1].abs()).max(g[2].abs());
-                    if !(m > 0.0) || !m.is_finite() {
-                        continue;
-                    }
-                    // X = −∇u/|∇u|; rhs = −div X, so rhs_i += w_i · ∇u/|∇u| (scaled by 1/m first
-                    // so that tiny far-field gradients do not underflow when squared)
-                    let inv_m = 1.0 / m;
-                    let k = inv_m / norm([g[0] * inv_m, g[1] * inv_m, g[2] * inv_m]);
-                    for (&v, w) in f.iter().zip(&op.divergence_weight) {
-                        rhs[v] += dot(*w, g) * k;
-                    }
+                divergence_of_normalised_gradient(op, f, &ut, &mut rt);
+            }
+            for c in 0..cols {
+                for (v, x) in rhs[c * n..(c + 1) * n].iter_mut().enumerate() {
+                    *x = rt[v * COLUMN_GROUP + c];
                 }
             }
         });
@@ -549,6 +582,56 @@ mod tests {
             // div ∇u = Lc u = −L u
             assert!((div[i] + lu).abs() < 1e-10, "vertex {i}: {} vs {}", div[i], -lu);
         }
+    }
+
+    #[test]
+    fn grouped_divergence_equals_the_one_column_pass_bit_for_bit() {
+        let m = crate::synth::icosphere(2, 1.0);
+        let n = m.n_vertices();
+        let ops: Vec<FaceOperator> = m
+            .faces
+            .iter()
+            .map(|f| FaceOperator::new([m.vertices[f[0]], m.vertices[f[1]], m.vertices[f[2]]]))
+            .collect();
+        // 5 columns (3 lanes of padding), one of them constant (zero gradient everywhere)
+        let cols: Vec<Vec<f64>> = (0..5)
+            .map(|c| {
+                m.vertices
+                    .iter()
+                    .map(|p| if c == 2 { 1.0 } else { (p[0] * (c + 1) as f64).exp() - p[1] * p[2] })
+                    .collect()
+            })
+            .collect();
+        let mut ut = vec![0.0; n * COLUMN_GROUP];
+        for (c, col) in cols.iter().enumerate() {
+            for v in 0..n {
+                ut[v * COLUMN_GROUP + c] = col[v];
+            }
+        }
+        let mut rt = vec![0.0; n * COLUMN_GROUP];
+        for (f, op) in m.faces.iter().zip(&ops) {
+            divergence_of_normalised_gradient(op, f, &ut, &mut rt);
+        }
+        for (c, u) in cols.iter().enumerate() {
+            let mut rhs = vec![0.0; n];
+            for (f, op) in m.faces.iter().zip(&ops) {
+                let g = op.gradient([u[f[0]], u[f[1]], u[f[2]]]);
+                let mx = g[0].abs().max(g[1].abs()).max(g[2].abs());
+                if !(mx > 0.0) || !mx.is_finite() {
+                    continue;
+                }
+                let inv_m = 1.0 / mx;
+                let k = inv_m / norm([g[0] * inv_m, g[1] * inv_m, g[2] * inv_m]);
+                for (&v, w) in f.iter().zip(&op.divergence_weight) {
+                    rhs[v] += dot(*w, g) * k;
+                }
+            }
+            for v in 0..n {
+                assert_eq!(rt[v * COLUMN_GROUP + c].to_bits(), rhs[v].to_bits(), "column {c}, vertex {v}");
+            }
+        }
+        let padding = (0..n).flat_map(|v| (5..COLUMN_GROUP).map(move |c| v * COLUMN_GROUP + c));
+        assert!(padding.map(|i| rt[i]).all(|x| x == 0.0), "padding lanes stay zero");
     }
 
     #[test]
