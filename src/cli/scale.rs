@@ -171,18 +171,48 @@ fn hostname() -> String {
     std::fs::read_to_string("/etc/hostname").map(|h| h.trim().to_string()).unwrap_or_else(|_| "host".into())
 }
 
+/// The stages a worker runs by default: every stage that is neither a source nor a sink,
+/// less those whose output only travels in process to a stage left out (the trainer's chain:
+/// its spectra do not travel, so it runs where the trainer is named).
+fn default_stages(spec: &PipelineSpec) -> HashSet<String> {
+    let mut only: HashSet<String> = spec
+        .stages
+        .iter()
+        .filter(|s| {
+            let (i, o) = s.config.ports();
+            i.is_some() && o.is_some()
+        })
+        .map(|s| s.name.clone())
+        .collect();
+    loop {
+        let cut: Vec<String> = spec
+            .stages
+            .iter()
+            .filter(|s| only.contains(&s.name))
+            .filter(|s| {
+                let carried = s.config.ports().1.is_some_and(NatsTransport::carries);
+                !carried
+                    && spec
+                        .stages
+                        .iter()
+                        .any(|c| c.input.as_deref() == Some(s.name.as_str()) && !only.contains(&c.name))
+            })
+            .map(|s| s.name.clone())
+            .collect();
+        if cut.is_empty() {
+            return only;
+        }
+        for c in cut {
+            only.remove(&c);
+        }
+    }
+}
+
 /// Runs `shapeforest worker`.
 pub fn worker(args: WorkerArgs) -> Result<()> {
     let spec = PipelineSpec::from_file(&args.pipeline)?;
     let only: HashSet<String> = if args.stages.is_empty() {
-        spec.stages
-            .iter()
-            .filter(|s| {
-                let (i, o) = s.config.ports();
-                i.is_some() && o.is_some()
-            })
-            .map(|s| s.name.clone())
-            .collect()
+        default_stages(&spec)
     } else {
         args.stages.iter().map(|s| s.trim().to_string()).filter(|s| !s.is_empty()).collect()
     };

@@ -280,8 +280,8 @@ pub struct Settings {
     /// Deliveries of a job before it is dead-lettered and rejected. Default 5.
     #[serde(default = "default_max_deliver")]
     pub nats_max_deliver: u32,
-    /// Jobs delivered and unacknowledged per consuming stage (all its workers together);
-    /// default `channel_capacity`.
+    /// Jobs delivered and unacknowledged per consuming stage, all its workers together (the
+    /// fleet's bound; each worker holds no more than its in-process channels do). Default 64.
     #[serde(default)]
     pub nats_max_ack_pending: Option<usize>,
 }

@@ -83,7 +83,7 @@ impl NatsSettings {
             prefix: s.stream_prefix.clone(),
             ack_wait: Duration::from_secs_f64(s.nats_ack_wait_s),
             max_deliver: s.nats_max_deliver,
-            max_ack_pending: s.nats_max_ack_pending.unwrap_or(s.channel_capacity),
+            max_ack_pending: s.nats_max_ack_pending.unwrap_or(64),
             max_object_bytes: s.limits.max_file_bytes.saturating_mul(64),
         })
     }
@@ -314,6 +314,18 @@ impl NatsTransport {
         let sinks =
             spec.stages.iter().filter(|s| s.config.ports().1.is_none()).map(|s| s.name.clone()).collect();
         let needs = ServeNeeds { limits: spec.settings.limits, ..Default::default() };
+        Self::with_sinks(nats, sinks, needs, data, live, shutdown)
+    }
+
+    /// [`NatsTransport::new`] for a pipeline composed in code: `sinks` names its sinks.
+    pub fn with_sinks(
+        nats: Arc<Nats>,
+        sinks: HashSet<String>,
+        needs: ServeNeeds,
+        data: DataDir,
+        live: Arc<LiveModel>,
+        shutdown: Shutdown,
+    ) -> Self {
         let models = Arc::new(ModelResolver {
             nats: nats.clone(),
             root: data.root().join(".nats"),
@@ -362,7 +374,7 @@ impl NatsTransport {
         Ok(Box::new(NatsReceiver {
             nats: self.nats.clone(),
             consumer: c,
-            messages: tokio::sync::Mutex::new(None),
+            messages: tokio::sync::Mutex::new(Default::default()),
             batch: capacity.max(1),
             edge,
             shutdown: self.shutdown.clone(),
@@ -618,7 +630,7 @@ fn hold(
 struct NatsReceiver<C: Codec> {
     nats: Arc<Nats>,
     consumer: jetstream::consumer::Consumer<pull::Config>,
-    messages: tokio::sync::Mutex<Option<pull::Stream>>,
+    messages: tokio::sync::Mutex<std::collections::VecDeque<jetstream::Message>>,
     batch: usize,
     edge: Edge,
     shutdown: Shutdown,
@@ -627,35 +639,48 @@ struct NatsReceiver<C: Codec> {
 }
 
 impl<C: Codec> NatsReceiver<C> {
+    /// The next message: from the batch already pulled, or from a new pull request of up to
+    /// `batch` messages that the server answers within a second (with fewer, or none, when
+    /// nothing waits or `max_ack_pending` jobs are out). A request that expires is simply
+    /// made again; one that fails (the server is away) too, after a pause.
     async fn next_message(&self) -> Option<jetstream::Message> {
-        let mut guard = self.messages.lock().await;
+        let mut pulled = self.messages.lock().await;
         loop {
-            if guard.is_none() {
-                match self.consumer.stream().max_messages_per_batch(self.batch).messages().await {
-                    Ok(s) => *guard = Some(s),
-                    Err(e) => {
-                        tracing::warn!(consumer = %self.edge.durable, "cannot pull ({e}); retrying");
-                        tokio::select! {
-                            _ = self.shutdown.triggered() => return None,
-                            _ = tokio::time::sleep(Duration::from_millis(500)) => continue,
-                        }
-                    }
-                }
+            if let Some(m) = pulled.pop_front() {
+                return Some(m);
             }
-            let stream = guard.as_mut()?;
-            let m = tokio::select! {
+            if self.shutdown.is_triggered() {
+                return None;
+            }
+            let request =
+                self.consumer.batch().max_messages(self.batch).expires(Duration::from_secs(1)).messages();
+            let batch = tokio::select! {
                 // Shutdown: no more jobs are taken; those held finish and are acknowledged.
                 _ = self.shutdown.triggered() => return None,
-                m = stream.next() => m,
+                b = request => b,
             };
-            match m {
-                Some(Ok(m)) => return Some(m),
-                Some(Err(e)) => {
-                    tracing::warn!(consumer = %self.edge.durable, "pull failed ({e}); pulling again");
-                    *guard = None;
-                    tokio::time::sleep(Duration::from_millis(200)).await;
+            match batch {
+                Ok(mut b) => loop {
+                    let m = tokio::select! {
+                        _ = self.shutdown.triggered() => return None,
+                        m = b.next() => m,
+                    };
+                    match m {
+                        Some(Ok(m)) => pulled.push_back(m),
+                        Some(Err(e)) => {
+                            tracing::debug!(consumer = %self.edge.durable, "pull: {e}");
+                            break;
+                        }
+                        None => break,
+                    }
+                },
+                Err(e) => {
+                    tracing::warn!(consumer = %self.edge.durable, "cannot pull ({e}); retrying");
+                    tokio::select! {
+                        _ = self.shutdown.triggered() => return None,
+                        _ = tokio::time::sleep(Duration::from_millis(500)) => {}
+                    }
                 }
-                None => *guard = None,
             }
         }
     }
@@ -715,14 +740,20 @@ impl<C: Codec> Receiver<C::T> for NatsReceiver<C> {
                     continue;
                 }
                 let tries = i64::from(self.nats.settings.max_deliver);
-                let read = if delivered > tries {
-                    Err(format!(
+                let read = match self.read(&msg).await {
+                    // Readable, but every worker that took it stopped before finishing it
+                    // (a crash, kill -9, an out-of-memory kill): it is not tried again.
+                    Ok(_) if delivered > tries => Err(format!(
                         "no worker finished this job in {tries} deliveries (each one that took it stopped, \
-                         was killed, timed out or could not read it); dead-lettered to {}",
+                         was killed or timed out); dead-lettered to {}",
                         self.edge.dead_subject
-                    ))
-                } else {
-                    self.read(&msg).await
+                    )),
+                    Ok(x) => Ok(x),
+                    Err(e) if delivered > tries => Err(format!(
+                        "no worker could read this message in {tries} deliveries ({e}); dead-lettered to {}",
+                        self.edge.dead_subject
+                    )),
+                    Err(e) => Err(e),
                 };
                 let (job, key, body) = match read {
                     Ok(x) => x,
@@ -736,7 +767,7 @@ impl<C: Codec> Receiver<C::T> for NatsReceiver<C> {
                         tracing::error!(stream = %self.edge.stream, "dead letter: {e}");
                         self.dead_letter(&msg, &e).await;
                         let name = Self::header(&msg, wire::NAME_HEADER).unwrap_or_else(|| "message".into());
-                        let mut job = Job::generated(0, token(&name));
+                        let mut job = Job::generated(0, token(&super::message::shape_stem(Path::new(&name))));
                         job.arrived_as = Some(name);
                         let f = Failure {
                             stage: self.edge.consumer.clone(),
