@@ -36,7 +36,41 @@ pub enum Error {
     /// Generating a synthetic shape failed.
     #[error(transparent)]
     Synth(#[from] crate::synth::SynthError),
+    /// A pipeline file is invalid.
+    #[error(transparent)]
+    Config(#[from] crate::pipeline::ConfigError),
+    /// A pipeline, a stage or the daemon failed (boxed: a pipeline error can carry a core one).
+    #[error(transparent)]
+    Pipeline(Box<crate::pipeline::Error>),
+}
+
+impl From<crate::pipeline::Error> for Error {
+    /// A pipeline error; one that only wraps a core error becomes that error again.
+    fn from(e: crate::pipeline::Error) -> Self {
+        match e {
+            crate::pipeline::Error::Core(core) => core,
+            crate::pipeline::Error::Config(c) => Self::Config(c),
+            other => Self::Pipeline(Box::new(other)),
+        }
+    }
 }
 
 /// Result alias using the crate [`enum@Error`].
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+#[cfg(test)]
+mod tests {
+    use super::Error;
+    use crate::{mesh::MeshError, pipeline};
+
+    #[test]
+    fn a_core_error_through_the_pipeline_comes_back_as_itself() {
+        let mesh = MeshError::Empty { vertices: 0, faces: 0 };
+        let text = mesh.to_string();
+        let through: pipeline::Error = mesh.into();
+        assert_eq!(through.to_string(), text, "the pipeline adds nothing to a core error's message");
+        assert!(matches!(Error::from(through), Error::Mesh(MeshError::Empty { .. })));
+        let stage = pipeline::Error::Shutdown;
+        assert!(matches!(Error::from(stage), Error::Pipeline(e) if matches!(*e, pipeline::Error::Shutdown)));
+    }
+}

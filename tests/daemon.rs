@@ -208,3 +208,50 @@ fn vts_labelled_shapes_with_their_own_vertex_order_train_a_model() {
     assert!(acc >= 0.8, "after restart, scan6 → shape{reference}: {:.1} % within 0.05", 100.0 * acc);
     d.stop();
 }
+
+#[test]
+fn a_scan_with_holes_and_a_detached_piece_is_matched_on_its_part() {
+    use shapeforest::mesh::{perturb, Mesh, Perturbation};
+    let fam = family(8);
+    let holed = perturb(&fam.shapes[7], &[Perturbation::Holes { count: 5, radius: 0.03 }], 1).unwrap();
+    // A scanner's stray fragment: a small blob far from the body, in the same file.
+    let blob = shapeforest::synth::icosphere(1, 0.05);
+    let mut vertices = holed.mesh.vertices.clone();
+    let mut faces = holed.mesh.faces.clone();
+    let offset = vertices.len();
+    vertices.extend(blob.vertices.iter().map(|p| [p[0] + 3.0, p[1], p[2]]));
+    faces.extend(blob.faces.iter().map(|f| [f[0] + offset, f[1] + offset, f[2] + offset]));
+    let scan = Mesh::new(vertices, faces).unwrap();
+
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let mut d = Daemon::start(&data, true);
+    let incoming = data.join("incoming");
+    wait_until(&mut d, "the folders", || incoming.is_dir());
+    drop_mesh(&incoming, "fragmented.off", &scan);
+    wait_until(&mut d, "a result", || result_dirs(&data).contains(&"fragmented".to_string()));
+    let dir = data.join("matched/fragmented");
+    let map = read_map(&dir, "fragmented");
+    assert_eq!(map.len(), scan.n_vertices(), "every vertex of the scan, the fragment's too, is mapped");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("fragmented.report.json")).unwrap()).unwrap();
+    assert_eq!(report["components"].as_u64(), Some(2), "{report}");
+    assert_eq!(report["matched_part_vertices"].as_u64(), Some(offset as u64), "{report}");
+    assert!(report["holes_closed"].as_u64().unwrap() >= 3, "small holes closed for the spectrum: {report}");
+    assert!(d.log().contains("connected components; matching the largest"), "{}", d.log());
+    // The body's vertices land near their truth on the reference (the family shares one
+    // indexing; `kept` maps the holed scan's vertices to the pose's). Matched whole, as before
+    // the daemon used the scan's part, 58 % of them did; on its part 88 %.
+    let reference = &fam.shapes[0];
+    let close = (0..offset)
+        .filter(|&v| {
+            let (a, b) = (reference.vertices[holed.kept[v]], reference.vertices[map[v]]);
+            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt() < 0.05
+        })
+        .count();
+    assert!(
+        close as f64 > 0.8 * offset as f64,
+        "only {close} of {offset} body vertices matched near their truth"
+    );
+    d.stop();
+}

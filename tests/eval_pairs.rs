@@ -9,6 +9,7 @@ use shapeforest::{
     eval::{
         pairs::{run_pairs, PairMethod, PairsParams},
         protocol::ProtocolShape,
+        PooledReport,
     },
     forest::RandomForest,
     spectral::SpectrumParams,

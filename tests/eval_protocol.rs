@@ -6,7 +6,10 @@ mod common;
 use std::{path::Path, sync::Arc};
 
 use shapeforest::{
-    eval::protocol::{run_protocol, Method, ProtocolParams, ProtocolShape},
+    eval::{
+        protocol::{run_protocol, Method, ProtocolParams, ProtocolShape},
+        PooledReport,
+    },
     forest::{RandomForest, TrainingSet},
     mesh::{read_mesh, write_mesh},
     spectral::{compute_spectrum, SpectrumParams},
@@ -79,6 +82,21 @@ fn protocol_rejects_inconsistent_truth_tables() {
 
 use common::bin;
 
+/// `shapeforest match` of `scan` onto `reference` with `model`, into `out`.
+fn run_match(model: &Path, reference: &Path, scan: &Path, out: &Path) -> std::process::Output {
+    bin()
+        .args(["match", "--model"])
+        .arg(model)
+        .arg("--reference")
+        .arg(reference)
+        .arg("--mesh")
+        .arg(scan)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn match_writes_all_outputs_and_the_map_round_trips() {
     let dir = tempfile::tempdir().unwrap();
@@ -95,17 +113,7 @@ fn match_writes_all_outputs_and_the_map_round_trips() {
     write_mesh(&reference, &fam.shapes[0]).unwrap();
     write_mesh(&scan, &fam.shapes[2]).unwrap();
     let out = dir.path().join("out");
-    let o = bin()
-        .args(["match", "--model"])
-        .arg(&model)
-        .arg("--reference")
-        .arg(&reference)
-        .arg("--mesh")
-        .arg(&scan)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
+    let o = run_match(&model, &reference, &scan, &out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = std::fs::read_to_string(out.join("scan.map.txt")).unwrap();
     assert!(text.starts_with('#'));
@@ -142,17 +150,7 @@ fn match_writes_all_outputs_and_the_map_round_trips() {
     // A reference whose vertex count differs from the model's labels is refused clearly.
     let other = dir.path().join("small.off");
     write_mesh(&other, &shapeforest::synth::icosphere(3, 1.0)).unwrap();
-    let o = bin()
-        .args(["match", "--model"])
-        .arg(&model)
-        .arg("--reference")
-        .arg(&other)
-        .arg("--mesh")
-        .arg(&scan)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
+    let o = run_match(&model, &other, &scan, &out);
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("labels") && err.contains("small.off"), "{err}");

@@ -53,22 +53,28 @@ fn shuffled_class(dir: &Path, n: usize, rows: usize) -> std::path::PathBuf {
     class
 }
 
+/// `shapeforest eval` of `class` (2 training shapes, 1 test) into `out`; its standard output.
+fn eval_class(class: &Path, out: &Path, trees: usize, points: usize) -> String {
+    let o = bin()
+        .args(["eval", "--quiet", "--no-cache", "--prefix", "creature", "--train", "2", "--tests", "1"])
+        .args(["--trees", &trees.to_string(), "--eval-points", &points.to_string(), "--class"])
+        .arg(class)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(o.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&o.stderr));
+    println!("{stdout}");
+    stdout
+}
+
 #[test]
 fn eval_reads_vts_ground_truth_and_sym_vts_symmetry() {
     let dir = tempfile::tempdir().unwrap();
     let class = shuffled_class(dir.path(), 3, 1200);
     let out = dir.path().join("out");
-    let o = bin()
-        .args(["eval", "--quiet", "--no-cache", "--prefix", "creature", "--train", "2", "--tests", "1"])
-        .args(["--trees", "6", "--eval-points", "400", "--class"])
-        .arg(&class)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&o.stderr));
-    println!("{stdout}");
+    let stdout = eval_class(&class, &out, 6, 400);
     assert!(stdout.contains("1200 ground-truth rows (.vts)"), "{stdout}");
     assert!(stdout.contains("symmetry from .sym.vts"), "{stdout}");
     let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
@@ -151,17 +157,7 @@ fn eval_derives_a_symmetry_from_feature_points_and_refuses_a_wrong_one() {
     for wrong in [false, true] {
         let class = feature_class(dir.path(), wrong);
         let out = dir.path().join(format!("out{wrong}"));
-        let o = bin()
-            .args(["eval", "--quiet", "--no-cache", "--prefix", "creature", "--train", "2", "--tests", "1"])
-            .args(["--trees", "3", "--eval-points", "200", "--class"])
-            .arg(&class)
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        let stdout = String::from_utf8_lossy(&o.stdout);
-        assert!(o.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&o.stderr));
-        println!("{stdout}");
+        let stdout = eval_class(&class, &out, 3, 200);
         assert!(stdout.contains("symmetry from creature.sym.info (8 pairs, "), "{stdout}");
         assert!(out.join("symmetry.csv").is_file());
         let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();

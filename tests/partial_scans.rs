@@ -5,7 +5,10 @@
 use std::{path::Path, process::Command, sync::Arc};
 
 use shapeforest::{
-    eval::protocol::{run_protocol, Method, ProtocolParams, ProtocolReport, ProtocolShape},
+    eval::{
+        protocol::{run_protocol, Method, ProtocolParams, ProtocolReport, ProtocolShape},
+        PooledReport,
+    },
     forest::RandomForest,
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, read_mesh, vertex_components, write_mesh, Perturbation},

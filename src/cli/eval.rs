@@ -36,7 +36,7 @@ use shapeforest::{
             label_symmetry_from_mirrored_truth, MirroredTruth, SymmetricFeatures, SymmetryParams,
             SymmetrySolver,
         },
-        write_curves_csv, ErrorSummary,
+        write_curves_csv, ErrorSummary, PooledReport,
     },
     forest::RandomForest,
     mesh::{perturbations_name, read_mesh, write_mesh, Perturbation},

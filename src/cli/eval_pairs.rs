@@ -16,7 +16,7 @@ use shapeforest::{
         pairs::{run_pairs, PairMethod, PairsEvent, PairsParams, PairsReport},
         plot_curves_svg,
         protocol::ProtocolShape,
-        write_curves_csv, ErrorSummary,
+        write_curves_csv, ErrorSummary, PooledReport,
     },
     forest::RandomForest,
 };

@@ -194,7 +194,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
     // As in `eval`: small holes closed for the spectrum, read back on the part's vertices.
     let ref_area = reference.surface_area();
     let spectrum_mesh = match args.to {
-        None => part.filled(ScanPart::FILL_PERIMETER * ref_area.sqrt()).unwrap_or_else(|| part.mesh.clone()),
+        None => part.spectrum_mesh(ref_area).0,
         Some(_) => part.mesh.clone(),
     };
     let t0 = Instant::now();

@@ -69,39 +69,97 @@ pub enum EvalError {
 pub const CURVE_MAX: f64 = 0.25;
 
 /// Strict errors and, with a symmetry map, flips-allowed errors.
-pub(crate) type PooledErrors = (Vec<f64>, Option<Vec<f64>>);
+pub type PooledErrors = (Vec<f64>, Option<Vec<f64>>);
 
-/// Errors of one method pooled over several results: `(strict, symmetric)`, the symmetric list
-/// `None` unless `has_symmetry`.
-pub(crate) fn pool_errors<'a>(
-    has_symmetry: bool,
-    errors: impl Iterator<Item = (&'a [f64], Option<&'a [f64]>)>,
-) -> PooledErrors {
-    let mut strict = Vec::new();
-    let mut sym: Option<Vec<f64>> = has_symmetry.then(Vec::new);
-    for (s, y) in errors {
-        strict.extend_from_slice(s);
-        if let (Some(out), Some(y)) = (sym.as_mut(), y) {
-            out.extend_from_slice(y);
+/// A report that holds, for each of several results (test shapes, pairs), the errors of
+/// several methods; its pooled views (errors, summaries, curves over every result) come with it.
+///
+/// ```no_run
+/// use shapeforest::eval::{protocol::{Method, ProtocolReport}, PooledReport};
+/// # fn show(report: &ProtocolReport) {
+/// let (strict, flips) = report.summary(Method::ForestRegularized);
+/// println!("{:.1} % within 0.05", 100.0 * strict.within_005);
+/// # }
+/// ```
+pub trait PooledReport {
+    /// The methods compared.
+    type Method: Copy + 'static;
+    /// Every method, in report order.
+    const METHODS: &'static [Self::Method];
+
+    /// A method's short name, for tables and curves.
+    fn method_name(method: Self::Method) -> &'static str;
+
+    /// Whether flips-allowed (symmetric) errors were computed.
+    fn has_symmetry(&self) -> bool;
+
+    /// `(strict, symmetric)` errors of `method`, one item per result that has them.
+    fn method_errors(&self, method: Self::Method) -> impl Iterator<Item = (&[f64], Option<&[f64]>)>;
+
+    /// Errors of `method` pooled over all results: `(strict, symmetric)`, the symmetric list
+    /// `None` unless [`PooledReport::has_symmetry`].
+    fn pooled(&self, method: Self::Method) -> PooledErrors {
+        let mut strict = Vec::new();
+        let mut sym: Option<Vec<f64>> = self.has_symmetry().then(Vec::new);
+        for (s, y) in self.method_errors(method) {
+            strict.extend_from_slice(s);
+            if let (Some(out), Some(y)) = (sym.as_mut(), y) {
+                out.extend_from_slice(y);
+            }
         }
+        (strict, sym)
     }
-    (strict, sym)
+
+    /// Summary of `method` over all results: `(strict, symmetric)`.
+    fn summary(&self, method: Self::Method) -> (ErrorSummary, Option<ErrorSummary>) {
+        let (s, y) = self.pooled(method);
+        (ErrorSummary::of(&s), y.map(|y| ErrorSummary::of(&y)))
+    }
+
+    /// Cumulative curves: one per method (strict), then one per method with flips allowed
+    /// (named `NAME (sym)`) when a symmetry map was given.
+    fn curves(&self, steps: usize) -> Vec<CurveSeries> {
+        let mut out = Vec::new();
+        let mut sym = Vec::new();
+        for &m in Self::METHODS {
+            let name = Self::method_name(m);
+            let (s, y) = self.pooled(m);
+            out.push(CurveSeries { name: name.to_string(), curve: cumulative_curve(&s, steps) });
+            if let Some(y) = y {
+                sym.push(CurveSeries { name: format!("{name} (sym)"), curve: cumulative_curve(&y, steps) });
+            }
+        }
+        out.extend(sym);
+        out
+    }
 }
 
-/// Cumulative curves of pooled errors `(method name, (strict, symmetric))`: one per method
-/// (strict), then one per method with a symmetric list, named `NAME (sym)`.
-pub(crate) fn pooled_curves(pooled: Vec<(&str, PooledErrors)>, steps: usize) -> Vec<CurveSeries> {
-    let mut out = Vec::new();
-    let mut sym = Vec::new();
-    for (name, (s, y)) in pooled {
-        out.push(CurveSeries { name: name.to_string(), curve: cumulative_curve(&s, steps) });
-        if let Some(y) = y {
-            sym.push(CurveSeries { name: format!("{name} (sym)"), curve: cumulative_curve(&y, steps) });
+/// Implements [`PooledReport`] for a report type whose field `$results` lists results with an
+/// `errors(method)` accessor, for a method enum with `ALL` and `name()`.
+macro_rules! pooled_report {
+    ($report:ty, $method:ty, $results:ident) => {
+        impl $crate::eval::PooledReport for $report {
+            type Method = $method;
+            const METHODS: &'static [$method] = &<$method>::ALL;
+
+            fn method_name(method: $method) -> &'static str {
+                method.name()
+            }
+
+            fn has_symmetry(&self) -> bool {
+                self.has_symmetry
+            }
+
+            fn method_errors(&self, method: $method) -> impl Iterator<Item = (&[f64], Option<&[f64]>)> {
+                self.$results
+                    .iter()
+                    .filter_map(move |r| r.errors(method))
+                    .map(|e| (&e.strict[..], e.symmetric.as_deref()))
+            }
         }
-    }
-    out.extend(sym);
-    out
+    };
 }
+pub(crate) use pooled_report;
 
 /// Normalised geodesic errors of a map at a set of evaluated test vertices.
 ///

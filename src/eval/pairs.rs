@@ -27,7 +27,7 @@ use std::{collections::HashMap, path::PathBuf, sync::Arc, time::Instant};
 
 use serde::{Deserialize, Serialize};
 
-use super::{CurveSeries, ErrorSummary, EvalError};
+use super::EvalError;
 use crate::{
     eval::protocol::ProtocolShape,
     forest::{RandomForestParams, TrainingSet, TrainingShape},
@@ -171,24 +171,7 @@ pub struct PairsTimings {
     pub eval_s: f64,
 }
 
-impl PairsReport {
-    /// Errors of `method` pooled over all pairs: `(strict, symmetric)`.
-    pub fn pooled(&self, method: PairMethod) -> (Vec<f64>, Option<Vec<f64>>) {
-        let errors = self.pairs.iter().filter_map(|r| r.errors(method));
-        super::pool_errors(self.has_symmetry, errors.map(|e| (&e.strict[..], e.symmetric.as_deref())))
-    }
-
-    /// Summary of `method` over all pairs: `(strict, symmetric)`.
-    pub fn summary(&self, method: PairMethod) -> (ErrorSummary, Option<ErrorSummary>) {
-        let (s, y) = self.pooled(method);
-        (ErrorSummary::of(&s), y.map(|y| ErrorSummary::of(&y)))
-    }
-
-    /// Cumulative curves, one per method (strict), then the flips-allowed ones.
-    pub fn curves(&self, steps: usize) -> Vec<CurveSeries> {
-        super::pooled_curves(PairMethod::ALL.iter().map(|&m| (m.name(), self.pooled(m))).collect(), steps)
-    }
-}
+super::pooled_report!(PairsReport, PairMethod, pairs);
 
 /// Progress of [`run_pairs`].
 #[derive(Clone, Copy, Debug)]
@@ -230,32 +213,7 @@ fn check(
     symmetry: Option<&[usize]>,
     params: &PairsParams,
 ) -> Result<usize, EvalError> {
-    let n_labels = shapes.first().map_or(0, |s| s.truth.len());
-    if n_labels == 0 {
-        return Err(invalid("the pairwise protocol needs shapes with ground-truth tables".into()));
-    }
-    for s in shapes {
-        if s.truth.len() != n_labels {
-            return Err(invalid(format!(
-                "shape {} has {} ground-truth points, {} has {n_labels}",
-                s.name,
-                s.truth.len(),
-                shapes[0].name
-            )));
-        }
-        if let Some(&v) = s.truth.iter().find(|&&v| v >= s.mesh.n_vertices()) {
-            return Err(invalid(format!(
-                "shape {}: ground-truth vertex {v} outside its {} vertices",
-                s.name,
-                s.mesh.n_vertices()
-            )));
-        }
-    }
-    if let Some(sym) = symmetry {
-        if sym.len() != n_labels || sym.iter().any(|&k| k >= n_labels) {
-            return Err(invalid(format!("symmetry map of {} entries for {n_labels} labels", sym.len())));
-        }
-    }
+    let n_labels = super::protocol::check_shapes(shapes, symmetry)?;
     if params.training.is_empty() {
         return Err(invalid("the pairwise protocol needs at least one training shape".into()));
     }

@@ -44,7 +44,7 @@ use rand::{seq::index::sample, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::{geodesic_errors, CurveSeries, ErrorSummary, EvalError};
+use super::{geodesic_errors, EvalError};
 use crate::{
     descriptor::WksParams,
     forest::{
@@ -313,25 +313,7 @@ pub struct ProtocolReport {
     pub tests: Vec<TestResult>,
 }
 
-impl ProtocolReport {
-    /// Errors of `method` pooled over all tests: `(strict, symmetric)`.
-    pub fn pooled(&self, method: Method) -> (Vec<f64>, Option<Vec<f64>>) {
-        let errors = self.tests.iter().filter_map(|r| r.errors(method));
-        super::pool_errors(self.has_symmetry, errors.map(|e| (&e.strict[..], e.symmetric.as_deref())))
-    }
-
-    /// Summary of `method` over all tests: `(strict, symmetric)`.
-    pub fn summary(&self, method: Method) -> (ErrorSummary, Option<ErrorSummary>) {
-        let (s, y) = self.pooled(method);
-        (ErrorSummary::of(&s), y.map(|y| ErrorSummary::of(&y)))
-    }
-
-    /// Cumulative curves, one per method (strict), then one per method (symmetric) when a
-    /// symmetry map was given.
-    pub fn curves(&self, steps: usize) -> Vec<CurveSeries> {
-        super::pooled_curves(Method::ALL.iter().map(|&m| (m.name(), self.pooled(m))).collect(), steps)
-    }
-}
+super::pooled_report!(ProtocolReport, Method, tests);
 
 /// Progress of [`run_protocol`].
 #[derive(Clone, Copy, Debug)]
@@ -395,6 +377,41 @@ fn invalid(msg: String) -> EvalError {
     EvalError::InvalidInput(msg)
 }
 
+/// Checks that `shapes` (at least one) have ground-truth tables of one length, with entries
+/// inside their meshes, and that `symmetry` maps labels to labels; the number of labels.
+pub(crate) fn check_shapes(shapes: &[ProtocolShape], symmetry: Option<&[usize]>) -> Result<usize, EvalError> {
+    let Some(first) = shapes.first() else {
+        return Err(invalid("no shapes given".into()));
+    };
+    let n_labels = first.truth.len();
+    if n_labels == 0 {
+        return Err(invalid(format!("shape {} has an empty ground-truth table", first.name)));
+    }
+    for s in shapes {
+        if s.truth.len() != n_labels {
+            return Err(invalid(format!(
+                "shape {} has {} ground-truth points, {} has {n_labels}",
+                s.name,
+                s.truth.len(),
+                first.name
+            )));
+        }
+        if let Some(&v) = s.truth.iter().find(|&&v| v >= s.mesh.n_vertices()) {
+            return Err(invalid(format!(
+                "shape {}: ground-truth vertex {v} outside its {} vertices",
+                s.name,
+                s.mesh.n_vertices()
+            )));
+        }
+    }
+    if let Some(sym) = symmetry {
+        if sym.len() != n_labels || sym.iter().any(|&k| k >= n_labels) {
+            return Err(invalid(format!("symmetry map of {} entries for {n_labels} labels", sym.len())));
+        }
+    }
+    Ok(n_labels)
+}
+
 /// Runs the protocol (see the module documentation) on `shapes`.
 ///
 /// `symmetry`, when given, maps each label to the label at its mirror image (`symmetry[k]`
@@ -413,32 +430,7 @@ pub fn run_protocol(
     if params.n_train == 0 {
         return Err(invalid("n_train must be at least 1".into()));
     }
-    let n_labels = shapes[0].truth.len();
-    if n_labels == 0 {
-        return Err(invalid(format!("shape {} has an empty ground-truth table", shapes[0].name)));
-    }
-    for s in shapes {
-        if s.truth.len() != n_labels {
-            return Err(invalid(format!(
-                "shape {} has {} ground-truth points, {} has {n_labels}",
-                s.name,
-                s.truth.len(),
-                shapes[0].name
-            )));
-        }
-        if let Some(&v) = s.truth.iter().find(|&&v| v >= s.mesh.n_vertices()) {
-            return Err(invalid(format!(
-                "shape {}: ground-truth vertex {v} outside its {} vertices",
-                s.name,
-                s.mesh.n_vertices()
-            )));
-        }
-    }
-    if let Some(sym) = symmetry {
-        if sym.len() != n_labels || sym.iter().any(|&k| k >= n_labels) {
-            return Err(invalid(format!("symmetry map of {} entries for {n_labels} labels", sym.len())));
-        }
-    }
+    let n_labels = check_shapes(shapes, symmetry)?;
     let forest_params = params.forest.clone().check()?;
     let jobs = plan(shapes.len(), params);
     let cache = match &params.cache_dir {

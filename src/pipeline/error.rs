@@ -55,28 +55,37 @@ pub enum Error {
     /// An actor panicked outside a job (in its start or finish).
     #[error("panic: {0}")]
     Panic(String),
-    /// A mesh could not be read or written.
+    /// A core computation failed (reading a mesh, a spectrum, the forest, the regulariser, an
+    /// evaluation, a synthetic family): the library's own error, unchanged.
     #[error(transparent)]
-    Mesh(#[from] crate::mesh::MeshError),
-    /// A spectrum could not be computed or cached.
-    #[error(transparent)]
-    Spectral(#[from] crate::spectral::SpectralError),
-    /// A forest operation failed.
-    #[error(transparent)]
-    Forest(#[from] crate::forest::ForestError),
-    /// The regulariser failed.
-    #[error(transparent)]
-    Regularizer(#[from] crate::regularizer::RegularizerError),
-    /// An evaluation report could not be written.
-    #[error(transparent)]
-    Eval(#[from] crate::eval::EvalError),
-    /// A synthetic family could not be generated.
-    #[error(transparent)]
-    Synth(#[from] crate::synth::SynthError),
+    Core(#[from] crate::Error),
     /// A report could not be encoded.
     #[error(transparent)]
     Json(#[from] serde_json::Error),
 }
+
+/// Each core module's error converts through [`crate::Error`], so `?` works on them directly.
+macro_rules! through_core {
+    ($($t:ty),*) => {$(
+        impl From<$t> for Error {
+            fn from(e: $t) -> Self {
+                Self::Core(e.into())
+            }
+        }
+    )*};
+}
+through_core!(
+    crate::mesh::MeshError,
+    crate::spectral::SpectralError,
+    crate::descriptor::DescriptorError,
+    crate::geodesic::GeodesicError,
+    crate::forest::ForestError,
+    crate::matching::MatchingError,
+    crate::fmap::FmapError,
+    crate::regularizer::RegularizerError,
+    crate::eval::EvalError,
+    crate::synth::SynthError
+);
 
 impl Error {
     /// An I/O error on `path`.

@@ -14,7 +14,7 @@ use std::{
 use crate::{
     forest::{ForestDescriptor, Prediction},
     mesh::Mesh,
-    regularizer::{DenseMap, PreparedShape, SparseMatches},
+    regularizer::{DenseMap, PreparedShape, ScanPart, SparseMatches},
     spectral::Spectrum,
 };
 
@@ -200,10 +200,27 @@ pub struct Shape {
 /// A shape with its Laplace spectrum.
 #[derive(Clone, Debug)]
 pub struct SpectralShape {
-    /// The shape.
+    /// The shape (for a scan matched on a part of itself: the part).
     pub shape: Shape,
-    /// Its unit-area spectrum.
+    /// Its unit-area spectrum (for a partial scan: normalised as [`ScanPart`] says).
     pub spectrum: Arc<Spectrum>,
+    /// For a scan matched on a part of itself: the whole scan and how the part was made.
+    pub partial: Option<Arc<PartialScan>>,
+}
+
+/// A scan matched on a part of itself (its largest connected piece, its small holes closed
+/// for the spectrum, or normalised by the reference's area; see [`ScanPart`]): the map of the
+/// part is extended to the whole scan before it is written.
+#[derive(Clone, Debug)]
+pub struct PartialScan {
+    /// The whole scan, as it arrived.
+    pub scan: Arc<Mesh>,
+    /// The part matched.
+    pub part: ScanPart,
+    /// Holes closed for the spectrum.
+    pub holes_closed: usize,
+    /// The area the part's spectrum is normalised by, relative to its own (1: its own).
+    pub scale_ratio: f64,
 }
 
 /// A shape described for the forest: the model snapshot it is matched with travels along, so
@@ -250,9 +267,19 @@ pub struct MatchedShape {
 }
 
 impl SpectralShape {
-    /// The mesh.
+    /// A shape and its spectrum, matched whole.
+    pub fn whole(shape: Shape, spectrum: Arc<Spectrum>) -> Self {
+        Self { shape, spectrum, partial: None }
+    }
+
+    /// The mesh matched (for a partial scan: the part).
     pub fn mesh(&self) -> &Arc<Mesh> {
         &self.shape.mesh
+    }
+
+    /// The whole scan as it arrived (the mesh matched, unless the scan is matched on a part).
+    pub fn scan(&self) -> &Arc<Mesh> {
+        self.partial.as_ref().map_or(&self.shape.mesh, |p| &p.scan)
     }
 
     /// The per-vertex labels, for a labelled shape.
@@ -262,9 +289,14 @@ impl SpectralShape {
 }
 
 impl PredictedShape {
-    /// The mesh.
+    /// The mesh matched (for a partial scan: the part).
     pub fn mesh(&self) -> &Arc<Mesh> {
         self.shape.mesh()
+    }
+
+    /// The whole scan as it arrived.
+    pub fn scan(&self) -> &Arc<Mesh> {
+        self.shape.scan()
     }
 
     /// The per-vertex labels, for a labelled shape.
@@ -283,9 +315,14 @@ impl PredictedShape {
 macro_rules! predicted_accessors {
     ($t:ty) => {
         impl $t {
-            /// The mesh.
+            /// The mesh matched (for a partial scan: the part).
             pub fn mesh(&self) -> &Arc<Mesh> {
                 self.predicted.mesh()
+            }
+
+            /// The whole scan as it arrived.
+            pub fn scan(&self) -> &Arc<Mesh> {
+                self.predicted.scan()
             }
 
             /// The per-vertex labels, for a labelled shape.

@@ -54,7 +54,7 @@ pub use graph::{Pipeline, PipelineReport, Port, RunOptions, SignalEvent};
 pub use lock::DataLock;
 pub use message::{
     shape_stem, DescribedShape, Envelope, Failure, FailureKind, InputFile, Job, JobId, LabelSpec,
-    MatchedShape, PredictedShape, Shape, SparselyMatched, SpectralShape,
+    MatchedShape, PartialScan, PredictedShape, Shape, SparselyMatched, SpectralShape,
 };
 pub use model::{
     label_table, load_live_model, load_live_model_for, LiveModel, ModelState, NoModel, ServeNeeds,

@@ -60,6 +60,23 @@ impl ScanPart {
         (spectrum.renormalised(area).restricted(self.mesh.n_vertices()), ratio)
     }
 
+    /// The mesh to compute the part's spectrum on, for a reference of area `reference_area`:
+    /// the part with its holes of perimeter at most [`ScanPart::FILL_PERIMETER`]`·√reference_area`
+    /// closed, or the part itself when none is that small; with the number of holes closed.
+    pub fn spectrum_mesh(&self, reference_area: f64) -> (Arc<Mesh>, usize) {
+        let (mesh, closed) = fill_holes(&self.mesh, Self::FILL_PERIMETER * reference_area.sqrt());
+        if closed > 0 {
+            (Arc::new(mesh), closed)
+        } else {
+            (self.mesh.clone(), 0)
+        }
+    }
+
+    /// Whether the part is the scan as it is (connected; nothing to restrict or extend).
+    pub fn is_whole(&self) -> bool {
+        self.kept.is_none()
+    }
+
     /// A map of the part as a map of the whole `scan`.
     pub fn extend(&self, scan: &Mesh, map: Vec<usize>) -> Vec<usize> {
         match &self.kept {

@@ -276,27 +276,13 @@ pub(crate) fn check_closed_sphere(n_vertices: usize, faces: &[[usize; 3]]) -> Re
         }
     }
     // Vertex links must be single cycles.
-    let mut fan_start = vec![0usize; n_vertices + 1];
-    for f in faces {
-        for &v in f {
-            fan_start[v + 1] += 1;
-        }
-    }
-    for v in 0..n_vertices {
-        fan_start[v + 1] += fan_start[v];
-    }
-    if let Some(v) = (0..n_vertices).find(|&v| fan_start[v + 1] == fan_start[v]) {
+    // Each face at a vertex as its (next, previous) corners: the fan, walked below.
+    let (offsets, corners) = crate::mesh::face_neighbour_lists(faces, n_vertices);
+    if let Some(v) = (0..n_vertices).find(|&v| offsets[v + 1] == offsets[v]) {
         return Err(format!("vertex {v} is not used by any face"));
     }
-    let mut fill = fan_start.clone();
-    let mut fan = vec![(0usize, 0usize); 3 * faces.len()];
-    for f in faces {
-        for e in 0..3 {
-            let v = f[e];
-            fan[fill[v]] = (f[(e + 1) % 3], f[(e + 2) % 3]);
-            fill[v] += 1;
-        }
-    }
+    let fan: Vec<(usize, usize)> = corners.chunks_exact(2).map(|c| (c[0], c[1])).collect();
+    let fan_start: Vec<usize> = offsets.iter().map(|&o| o / 2).collect();
     for v in 0..n_vertices {
         let list = &fan[fan_start[v]..fan_start[v + 1]];
         let mut cur = list[0].1;

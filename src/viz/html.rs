@@ -112,7 +112,7 @@ fn curve_svg(errors: &[f64]) -> String {
 /// use shapeforest::{synth::icosphere, viz::{view_html, ViewPair}};
 /// let s = icosphere(1, 1.0);
 /// let map: Vec<usize> = (0..s.n_vertices()).collect();
-/// let pair = ViewPair { scan: &s, scan_name: "a", reference: &s, reference_name: "b", map: &map, errors: None };
+/// let pair = ViewPair::new(&s, "a", &s, "b", &map);
 /// let html = view_html(&pair, "a → b").unwrap();
 /// assert!(html.contains("<canvas") && html.contains("three.js authors"));
 /// ```
@@ -300,14 +300,8 @@ mod tests {
         let map: Vec<usize> = (0..s.n_vertices()).rev().collect();
         let vertices = [0, 5, 9];
         let errors = [0.0, 0.02, 0.2];
-        let pair = ViewPair {
-            scan: &s,
-            scan_name: "scan</script>",
-            reference: &s,
-            reference_name: "ref",
-            map: &map,
-            errors: Some(PointErrors { vertices: &vertices, errors: &errors }),
-        };
+        let pair = ViewPair::new(&s, "scan</script>", &s, "ref", &map)
+            .with_errors(PointErrors { vertices: &vertices, errors: &errors });
         let html = view_html(&pair, "t").unwrap();
         assert!(html.contains("SPDX-License-Identifier: MIT") || html.contains("The MIT License"));
         assert!(html.contains("data:text/javascript;base64,"));
@@ -326,14 +320,8 @@ mod tests {
     fn bad_errors_are_refused() {
         let s = icosphere(1, 1.0);
         let map: Vec<usize> = (0..s.n_vertices()).collect();
-        let pair = ViewPair {
-            scan: &s,
-            scan_name: "a",
-            reference: &s,
-            reference_name: "b",
-            map: &map,
-            errors: Some(PointErrors { vertices: &[100], errors: &[0.1] }),
-        };
+        let pair = ViewPair::new(&s, "a", &s, "b", &map)
+            .with_errors(PointErrors { vertices: &[100], errors: &[0.1] });
         assert!(view_html(&pair, "x").unwrap_err().to_string().contains("evaluated vertex 100"));
     }
 }

@@ -74,7 +74,23 @@ pub struct ViewPair<'a> {
     pub errors: Option<PointErrors<'a>>,
 }
 
-impl ViewPair<'_> {
+impl<'a> ViewPair<'a> {
+    /// A pair without errors (no ground truth known); add them with [`ViewPair::with_errors`].
+    pub fn new(
+        scan: &'a Mesh,
+        scan_name: &'a str,
+        reference: &'a Mesh,
+        reference_name: &'a str,
+        map: &'a [usize],
+    ) -> Self {
+        Self { scan, scan_name, reference, reference_name, map, errors: None }
+    }
+
+    /// The same pair with errors at evaluated points.
+    pub fn with_errors(self, errors: PointErrors<'a>) -> Self {
+        Self { errors: Some(errors), ..self }
+    }
+
     /// Checks that the map has one reference vertex per scan vertex and that the errors name
     /// scan vertices and are finite.
     ///

@@ -166,7 +166,7 @@ fn draw_mesh(
 /// use shapeforest::{synth::icosphere, viz::{render_snapshot, SnapshotParams, ViewPair}};
 /// let s = icosphere(2, 1.0);
 /// let map: Vec<usize> = (0..s.n_vertices()).collect();
-/// let pair = ViewPair { scan: &s, scan_name: "a", reference: &s, reference_name: "b", map: &map, errors: None };
+/// let pair = ViewPair::new(&s, "a", &s, "b", &map);
 /// let img = render_snapshot(&pair, None, &SnapshotParams::default()).unwrap();
 /// assert_eq!((img.width, img.height), (800, 400));
 /// assert_ne!(img.pixel(200, 200), [246, 246, 246]); // the scan is drawn in the left half
@@ -247,14 +247,7 @@ mod tests {
         // Every torus vertex mapped to the sphere's north-most vertex: the scan is one colour.
         let top = (0..s.n_vertices()).max_by(|&a, &b| s.vertices[a][1].total_cmp(&s.vertices[b][1])).unwrap();
         let map = vec![top; t.n_vertices()];
-        let pair = ViewPair {
-            scan: &t,
-            scan_name: "t",
-            reference: &s,
-            reference_name: "s",
-            map: &map,
-            errors: None,
-        };
+        let pair = ViewPair::new(&t, "t", &s, "s", &map);
         let p = SnapshotParams::default();
         let img = render_snapshot(&pair, None, &p).unwrap();
         let drawn = |x0: usize, x1: usize| {
@@ -289,14 +282,7 @@ mod tests {
     fn bad_sizes_are_errors() {
         let s = icosphere(1, 1.0);
         let map = vec![0; 3];
-        let pair = ViewPair {
-            scan: &s,
-            scan_name: "a",
-            reference: &s,
-            reference_name: "b",
-            map: &map,
-            errors: None,
-        };
+        let pair = ViewPair::new(&s, "a", &s, "b", &map);
         let e = render_snapshot(&pair, None, &SnapshotParams::default()).unwrap_err().to_string();
         assert!(e.contains("the map has 3 entries but the scan `a` has 42 vertices"), "{e}");
         let map: Vec<usize> = (0..42).collect();

@@ -148,6 +148,11 @@ impl Stage for FmapStage {
             &self.params,
         )
         .map_err(|e| internal("fmap", job, e))?;
+        let mut dense = dense;
+        if let Some(partial) = &p.shape.partial {
+            // The part's map, extended to the whole scan (other pieces: nearest matched vertex).
+            dense.map = partial.part.extend(&partial.scan, std::mem::take(&mut dense.map));
+        }
         Ok(MatchedShape { predicted: s.predicted, dense: Arc::new(dense) })
     }
 }

@@ -120,7 +120,8 @@ impl MatchSink {
         fs::create_dir_all(&partial).at(&partial)?;
         let model = &m.predicted.model;
         let dense = &m.dense;
-        let mesh = &m.predicted.shape.shape.mesh;
+        let mesh = m.scan();
+        let part_of = m.predicted.shape.partial.as_deref();
 
         let mut text = format!(
             "# shapeforest: line i (after this header) = vertex of reference `{}` (model v{}) matched to vertex i of {}\n",
@@ -152,6 +153,10 @@ impl MatchSink {
             "job": job.id,
             "input": job.arrived_as.clone().unwrap_or_else(|| name.clone()),
             "vertices": mesh.n_vertices(),
+            "components": part_of.map_or(1, |p| p.part.components),
+            "matched_part_vertices": m.mesh().n_vertices(),
+            "holes_closed": part_of.map_or(0, |p| p.holes_closed),
+            "normalising_area_ratio": part_of.map_or(1.0, |p| p.scale_ratio),
             "model_version": model.version,
             "reference": model.reference_name,
             "reference_vertices": model.reference.mesh.n_vertices(),

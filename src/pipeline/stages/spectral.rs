@@ -6,13 +6,16 @@ use std::{path::PathBuf, sync::Arc};
 use serde::Deserialize;
 
 use crate::{
+    mesh::Mesh,
     pipeline::{
         actor::Stage,
         config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
         error::Error,
-        message::{Failure, Job, Shape, SpectralShape},
+        message::{Failure, Job, PartialScan, Shape, SpectralShape},
+        model::LiveModel,
     },
-    spectral::{spectrum_cached, SpectrumCache, SpectrumParams},
+    regularizer::{normalising_area, ScanPart},
+    spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 impl StageConfig for SpectralConfig {
@@ -23,7 +26,8 @@ impl StageConfig for SpectralConfig {
     };
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
         let Some(AnyPort::Shape(i)) = input else { return Err(b.wrong_input()) };
-        let stage = SpectralStage::new(self, Some(b.data.cache())).map_err(|e| b.error(e))?;
+        let stage =
+            SpectralStage::new(self, Some(b.data.cache())).map_err(|e| b.error(e))?.with_live(b.live.clone());
         let name = b.stage.name.clone();
         Ok(Some(AnyPort::Spectrum(b.pipeline.stage(&name, i, stage))))
     }
@@ -54,10 +58,13 @@ impl Default for SpectralConfig {
     }
 }
 
-/// Computes spectra.
+/// Computes spectra. A scan (a shape without labels) is matched on its part, as `shapeforest
+/// match` does (see [`ScanPart`]): its largest connected piece, its small holes closed for the
+/// spectrum, normalised by the live model's reference area when it is an open part of a body.
 pub struct SpectralStage {
     params: SpectrumParams,
     cache: Option<SpectrumCache>,
+    live: Option<Arc<LiveModel>>,
 }
 
 impl SpectralStage {
@@ -69,7 +76,18 @@ impl SpectralStage {
             Some(d) if config.cache => Some(SpectrumCache::new(d)?),
             _ => None,
         };
-        Ok(Self { params, cache })
+        Ok(Self { params, cache, live: None })
+    }
+
+    /// The same stage, reading the reference's area from `live` (without it, a scan is
+    /// normalised by its own area).
+    pub fn with_live(self, live: Arc<LiveModel>) -> Self {
+        Self { live: Some(live), ..self }
+    }
+
+    fn spectrum(&self, job: &Job, mesh: &Mesh) -> Result<Spectrum, Failure> {
+        spectrum_cached(mesh, &self.params, self.cache.as_ref())
+            .map_err(|e| Failure::bad_input("spectral", format!("{}: {e}", job.display_source())))
     }
 }
 
@@ -78,8 +96,37 @@ impl Stage for SpectralStage {
     type Out = SpectralShape;
 
     fn process(&mut self, job: &mut Job, shape: Shape) -> Result<SpectralShape, Failure> {
-        let spectrum = spectrum_cached(&shape.mesh, &self.params, self.cache.as_ref())
-            .map_err(|e| Failure::bad_input("spectral", format!("{}: {e}", job.display_source())))?;
-        Ok(SpectralShape { shape, spectrum: Arc::new(spectrum) })
+        if shape.labels.is_some() {
+            let spectrum = self.spectrum(job, &shape.mesh)?;
+            return Ok(SpectralShape::whole(shape, Arc::new(spectrum)));
+        }
+        let part = ScanPart::of(&shape.mesh);
+        let reference_area = match self.live.as_ref().and_then(|l| l.current()) {
+            Some(model) => model.reference.mesh.surface_area(),
+            None => part.mesh.surface_area(),
+        };
+        let (spectrum_mesh, holes_closed) = part.spectrum_mesh(reference_area);
+        let spectrum = self.spectrum(job, &spectrum_mesh)?;
+        if part.is_whole() && holes_closed == 0 {
+            let own = spectrum_mesh.surface_area();
+            if normalising_area(&spectrum_mesh, reference_area) == own {
+                return Ok(SpectralShape::whole(shape, Arc::new(spectrum)));
+            }
+        }
+        let (spectrum, scale_ratio) = part.spectrum_for_matching(&spectrum_mesh, spectrum, reference_area);
+        if !part.is_whole() {
+            tracing::warn!(
+                job = job.id,
+                "{}: {} connected components; matching the largest ({} of {} vertices), the other pieces take \
+                 the match of their nearest matched vertex",
+                job.display_source(),
+                part.components,
+                part.mesh.n_vertices(),
+                shape.mesh.n_vertices()
+            );
+        }
+        let matched = Shape { mesh: part.mesh.clone(), labels: None };
+        let partial = PartialScan { scan: shape.mesh, part, holes_closed, scale_ratio };
+        Ok(SpectralShape { shape: matched, spectrum: Arc::new(spectrum), partial: Some(Arc::new(partial)) })
     }
 }

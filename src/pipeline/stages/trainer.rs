@@ -589,7 +589,7 @@ impl Sink for TrainerSink {
                     let mut job = Job::generated(0, &s.name);
                     job.source = Some(s.mesh.clone());
                     let shape = Shape { mesh, labels: Some(Arc::new(labels)) };
-                    self.pending.push((job, SpectralShape { shape, spectrum: Arc::new(spectrum) }));
+                    self.pending.push((job, SpectralShape::whole(shape, Arc::new(spectrum))));
                 }
                 Err(e) => tracing::warn!(shape = %s.name, "cannot read a stored training shape: {e}"),
             }
