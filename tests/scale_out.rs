@@ -104,12 +104,17 @@ fn scans(dir: &Path, first: usize, n: usize) -> Vec<PathBuf> {
 }
 
 fn client(url: &str) -> std::sync::Arc<Nats> {
+    client_with(url, 64)
+}
+
+/// A client that creates edge consumers as workers with `max_ack_pending` would.
+fn client_with(url: &str, max_ack_pending: usize) -> std::sync::Arc<Nats> {
     Nats::connect(NatsSettings {
         url: url.into(),
         prefix: "shapeforest".into(),
         ack_wait: Duration::from_secs(2),
         max_deliver: 5,
-        max_ack_pending: 64,
+        max_ack_pending,
         max_object_bytes: 1 << 30,
     })
     .unwrap()
@@ -373,7 +378,7 @@ fn a_burst_of_1000_scans_is_held_by_the_queue_not_by_the_worker() {
     std::fs::create_dir_all(&input).unwrap();
     let files: Vec<PathBuf> = (0..1000).map(|i| tiny_scan(&input, i)).collect();
     submit_files(&p, &url, &files);
-    let nats = client(&url);
+    let nats = client_with(&url, 4);
     assert_eq!(backlog(&nats, "scans", "read-scans").0, 1000, "the burst waits in the stream");
     let out = dir.path().join("out");
     let mut w = worker(dir.path(), &p, &url, "w", None);

@@ -36,15 +36,14 @@ use std::{
 
 use async_nats::jetstream::{self, consumer::pull, kv, object_store, stream, AckKind};
 use futures_util::StreamExt;
-use tokio::io::AsyncReadExt;
 
 use self::wire::{BlobRef, WireEnvelope, WireFailure, WireFileRef, WireInput, WireJob, WireMatched};
 use super::{
     config::{PipelineSpec, PortType},
     error::Error,
     message::{
-        Envelope, Failure, FailureKind, InputFile, Job, LabelSpec, MatchedShape, PredictedShape, Shape,
-        SpectralShape,
+        Envelope, Failure, FailureKind, InputFile, Job, LabelSpec, MatchedShape, PartialScan, PredictedShape,
+        Shape, SpectralShape,
     },
     model::{LiveModel, ModelState, ServeNeeds},
     shutdown::Shutdown,
@@ -104,6 +103,8 @@ pub struct Nats {
     runtime: tokio::runtime::Runtime,
     js: jetstream::Context,
     blobs: object_store::ObjectStore,
+    blobs_name: String,
+    blobs_stream: stream::Stream,
     kv: kv::Store,
     /// The settings.
     pub settings: NatsSettings,
@@ -120,7 +121,7 @@ impl Nats {
             .build()
             .map_err(Error::Runtime)?;
         let s = settings.clone();
-        let (js, blobs, kv) = runtime.block_on(async move {
+        let (js, blobs, blobs_name, blobs_stream, kv) = runtime.block_on(async move {
             let client = async_nats::ConnectOptions::new()
                 .retry_on_initial_connect()
                 .connection_timeout(Duration::from_secs(5))
@@ -157,11 +158,15 @@ impl Nats {
             })
             .await
             .map_err(|e| nats_err("cannot create the dead-letter stream", e))?;
-            Ok::<_, Error>((js, blobs, kv))
+            let blobs_stream = js
+                .get_stream(format!("OBJ_{blobs_name}"))
+                .await
+                .map_err(|e| nats_err("cannot open the object store's stream", e))?;
+            Ok::<_, Error>((js, blobs, blobs_name, blobs_stream, kv))
         })?;
         // `retry_on_initial_connect` returns before the connection is made; the buckets above
         // waited for it.
-        Ok(Arc::new(Self { runtime, js, blobs, kv, settings }))
+        Ok(Arc::new(Self { runtime, js, blobs, blobs_name, blobs_stream, kv, settings }))
     }
 
     /// Runs `f` to completion on the connection's runtime (from a thread that is not inside
@@ -204,9 +209,30 @@ impl Nats {
         if blob.size > max {
             return Err(format!("object {} is {} bytes, more than the {max} allowed", blob.key, blob.size));
         }
-        let obj = self.blobs.get(&blob.key).await.map_err(|e| format!("object {}: {e}", blob.key))?;
+        let info = self.blobs.info(&blob.key).await.map_err(|e| format!("object {}: {e}", blob.key))?;
+        if info.deleted || info.size as u64 != blob.size {
+            return Err(format!("object {}: missing, or not of the size its key says", blob.key));
+        }
+        // The chunks by direct get (the object store's own reader makes a consumer per read,
+        // and a burst of reads runs into the server's consumer limit).
+        let subject = format!("$O.{}.C.{}", self.blobs_name, info.nuid);
         let mut bytes = Vec::with_capacity(blob.size as usize);
-        obj.take(max + 1).read_to_end(&mut bytes).await.map_err(|e| format!("object {}: {e}", blob.key))?;
+        let mut seq = None;
+        for _ in 0..info.chunks {
+            let m = self
+                .blobs_stream
+                .direct_get_next_for_subject(&subject, seq)
+                .await
+                .map_err(|e| format!("object {}: {e}", blob.key))?;
+            let m = jetstream::message::StreamMessage::try_from(m.message)
+                .map_err(|e| format!("object {}: a chunk: {e}", blob.key))?;
+            let at = m.sequence;
+            bytes.extend_from_slice(&m.payload);
+            if bytes.len() as u64 > blob.size {
+                break;
+            }
+            seq = Some(at + 1);
+        }
         if bytes.len() as u64 != blob.size || wire::content_key(&bytes) != blob.key {
             return Err(format!("object {}: its contents do not match its key", blob.key));
         }
@@ -874,6 +900,14 @@ struct MapCodec {
     models: Arc<ModelResolver>,
 }
 
+/// A mesh from the store, checked as [`crate::mesh::Mesh::new`] checks a mesh read from a file.
+async fn get_mesh(nats: &Nats, blob: &BlobRef) -> Result<crate::mesh::Mesh, String> {
+    let raw: crate::mesh::Mesh = get_decoded(nats, wire::MESH, blob).await?;
+    let mut mesh = crate::mesh::Mesh::new(raw.vertices, raw.faces).map_err(|e| format!("mesh: {e}"))?;
+    mesh.face_multiplicity = raw.face_multiplicity;
+    Ok(mesh)
+}
+
 async fn put_encoded<T: serde::Serialize>(nats: &Nats, format: &str, value: &T) -> Result<BlobRef, String> {
     let bytes = wire::encode(format, value)?;
     nats.put_blob(&bytes).await
@@ -911,6 +945,20 @@ impl Codec for MapCodec {
                     .await?,
                 dense: put_encoded(nats, wire::DENSE_MAP, &wire::WireDense::of(&m.dense)).await?,
                 model_version: p.model.version,
+                partial: match &p.shape.partial {
+                    Some(x) => Some(wire::WirePartial {
+                        scan: put_encoded(nats, wire::MESH, &*x.scan).await?,
+                        part: put_encoded(nats, wire::MESH, &*x.part.mesh).await?,
+                        kept: match &x.part.kept {
+                            Some(k) => Some(put_encoded(nats, wire::KEPT, k).await?),
+                            None => None,
+                        },
+                        components: x.part.components,
+                        holes_closed: x.holes_closed,
+                        scale_ratio: x.scale_ratio,
+                    }),
+                    None => None,
+                },
             })
         })
     }
@@ -922,11 +970,32 @@ impl Codec for MapCodec {
         b: WireMatched,
     ) -> BoxFuture<'a, Result<MatchedShape, String>> {
         Box::pin(async move {
-            let raw: crate::mesh::Mesh = get_decoded(nats, wire::MESH, &b.mesh).await?;
-            let mut mesh =
-                crate::mesh::Mesh::new(raw.vertices, raw.faces).map_err(|e| format!("mesh: {e}"))?;
-            mesh.face_multiplicity = raw.face_multiplicity;
+            let mesh = get_mesh(nats, &b.mesh).await?;
             let n = mesh.n_vertices();
+            let partial = match &b.partial {
+                Some(x) => {
+                    let scan = Arc::new(get_mesh(nats, &x.scan).await?);
+                    let part = Arc::new(get_mesh(nats, &x.part).await?);
+                    let kept: Option<Vec<usize>> = match &x.kept {
+                        Some(k) => Some(get_decoded(nats, wire::KEPT, k).await?),
+                        None => None,
+                    };
+                    let bad = kept.as_ref().is_some_and(|k| {
+                        k.len() != part.n_vertices() || k.iter().any(|&v| v >= scan.n_vertices())
+                    });
+                    if bad {
+                        return Err("a part whose vertices are not the scan's".into());
+                    }
+                    Some(Arc::new(PartialScan {
+                        scan,
+                        part: crate::regularizer::ScanPart { mesh: part, kept, components: x.components },
+                        holes_closed: x.holes_closed,
+                        scale_ratio: x.scale_ratio,
+                    }))
+                }
+                None => None,
+            };
+            let n_scan = partial.as_ref().map_or(n, |p| p.scan.n_vertices());
             let labels: Option<Vec<Option<u32>>> = match &b.labels {
                 Some(l) => Some(get_decoded(nats, wire::LABELS, l).await?),
                 None => None,
@@ -949,7 +1018,7 @@ impl Codec for MapCodec {
                 return Err(format!("a prediction of another mesh (not {n} vertices)"));
             }
             let dense =
-                get_decoded::<wire::WireDense>(nats, wire::DENSE_MAP, &b.dense).await?.into_dense(n)?;
+                get_decoded::<wire::WireDense>(nats, wire::DENSE_MAP, &b.dense).await?.into_dense(n_scan)?;
             let model = self.models.version(b.model_version).await?;
             if let Some(bad) = dense.map.iter().find(|&&r| r >= model.reference.mesh.n_vertices()) {
                 return Err(format!(
@@ -962,6 +1031,7 @@ impl Codec for MapCodec {
                     shape: SpectralShape {
                         shape: Shape { mesh: Arc::new(mesh), labels: labels.map(Arc::new) },
                         spectrum: Arc::new(spectrum),
+                        partial,
                     },
                     model,
                     prediction: Arc::new(prediction),

@@ -173,6 +173,25 @@ pub struct WireMatched {
     pub dense: BlobRef,
     /// The model version the job was matched with (its bundle is `model-vN` in the store).
     pub model_version: u64,
+    /// For a scan matched on a part of itself: the whole scan and how the part was made.
+    pub partial: Option<WirePartial>,
+}
+
+/// A scan matched on a part of itself ([`crate::pipeline::PartialScan`]).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WirePartial {
+    /// The whole scan, format `shapeforest.mesh`.
+    pub scan: BlobRef,
+    /// The part, format `shapeforest.mesh`.
+    pub part: BlobRef,
+    /// `kept[i]`: the scan vertex that part vertex `i` is, format `shapeforest.kept`.
+    pub kept: Option<BlobRef>,
+    /// Connected components of the scan.
+    pub components: usize,
+    /// Holes closed for the spectrum.
+    pub holes_closed: usize,
+    /// The area the part's spectrum is normalised by, relative to its own.
+    pub scale_ratio: f64,
 }
 
 /// A message: the job and its payload or failure.
@@ -188,6 +207,8 @@ pub struct WireEnvelope<B> {
 pub const MESH: &str = "shapeforest.mesh";
 /// Format name of a labels object.
 pub const LABELS: &str = "shapeforest.labels";
+/// Format name of the vertex list of a scan's part.
+pub const KEPT: &str = "shapeforest.kept";
 /// Format name of a spectrum object.
 pub const SPECTRUM: &str = "shapeforest.spectrum";
 /// Format name of a prediction object.
@@ -305,16 +326,8 @@ impl WireDense {
 
     /// The dense map, checked against the scan's vertex count.
     pub fn into_dense(self, n_vertices: usize) -> Result<DenseMap, String> {
-        for (what, len) in [
-            ("map", self.map.len()),
-            ("anchor_map", self.anchor_map.len()),
-            ("spectral_map", self.spectral_map.len()),
-            ("fmap_map", self.fmap_map.len()),
-            ("forest_map", self.forest_map.len()),
-        ] {
-            if len != n_vertices {
-                return Err(format!("dense map: {what} has {len} entries for {n_vertices} vertices"));
-            }
+        if self.map.len() != n_vertices {
+            return Err(format!("dense map: {} entries for {n_vertices} vertices", self.map.len()));
         }
         Ok(DenseMap {
             map: self.map,
