@@ -9,7 +9,7 @@
 
 use std::{
     collections::HashSet,
-    path::PathBuf,
+    path::{Path, PathBuf},
     sync::{Arc, Mutex},
     time::Instant,
 };
@@ -66,7 +66,7 @@ impl Sink for Count {
     }
 }
 
-fn run(label: &str, n: usize, file: &PathBuf, data: &DataDir, nats: Option<Arc<Nats>>) -> anyhow::Result<()> {
+fn run(label: &str, n: usize, file: &Path, data: &DataDir, nats: Option<Arc<Nats>>) -> anyhow::Result<()> {
     let done = Shutdown::new();
     let live = Arc::new(LiveModel::new());
     let ctx = PipelineContext::with_shutdown(done.clone());
@@ -84,7 +84,7 @@ fn run(label: &str, n: usize, file: &PathBuf, data: &DataDir, nats: Option<Arc<N
         p.set_transport(Dynamic::new(Arc::new(t)));
     }
     let latencies = Arc::new(Mutex::new(Vec::new()));
-    let src = p.source("files", Files { path: file.clone(), n });
+    let src = p.source("files", Files { path: file.to_path_buf(), n });
     let passed = p.stage("pass-on", src, PassOn);
     p.sink("count", passed, Count { n, latencies: latencies.clone(), done });
     let t0 = Instant::now();

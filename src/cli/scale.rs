@@ -112,7 +112,7 @@ fn run_worker(
     data: DataDir,
     stop_after: Option<f64>,
 ) -> Result<()> {
-    check_selection(spec, &only, |p| NatsTransport::carries(p))?;
+    check_selection(spec, &only, NatsTransport::carries)?;
     let settings = NatsSettings::from_spec(spec, url)?;
     std::fs::create_dir_all(data.root())
         .with_context(|| format!("cannot create {}", data.root().display()))?;

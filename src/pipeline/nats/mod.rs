@@ -452,12 +452,12 @@ trait Codec: Send + Sync + 'static {
     type T: Clone + Send + Sync + 'static;
     type Body: serde::Serialize + serde::de::DeserializeOwned + Send;
     const FORMAT: &'static str;
-    fn to_body<'a>(
+    fn make_body<'a>(
         nats: &'a Nats,
         job: &'a Job,
         value: &'a Self::T,
     ) -> BoxFuture<'a, Result<Self::Body, String>>;
-    fn from_body<'a>(
+    fn read_body<'a>(
         &'a self,
         nats: &'a Nats,
         job: &'a mut Job,
@@ -520,7 +520,7 @@ impl<C: Codec> NatsSender<C> {
     /// Encodes and publishes, retrying while the server is away; `Err` only at shutdown.
     async fn publish(&self, env: &mut Envelope<C::T>) -> Result<(), ()> {
         let body = match &env.body {
-            Ok(v) => C::to_body(&self.nats, &env.job, v).await.map_err(|e| Failure {
+            Ok(v) => C::make_body(&self.nats, &env.job, v).await.map_err(|e| Failure {
                 stage: self.edge.producer.clone(),
                 kind: FailureKind::Internal,
                 message: format!("cannot send the job on: {e}"),
@@ -732,7 +732,7 @@ impl<C: Codec> NatsReceiver<C> {
         let w: WireEnvelope<C::Body> = wire::decode(C::FORMAT, &msg.payload)?;
         let mut job = local_job(&w.job);
         let body = match w.body {
-            Ok(b) => Ok(self.codec.from_body(&self.nats, &mut job, b).await?),
+            Ok(b) => Ok(self.codec.read_body(&self.nats, &mut job, b).await?),
             Err(f) => Err(local_failure(f)),
         };
         Ok((job, w.job.key, body))
@@ -836,7 +836,7 @@ impl Codec for FileCodec {
     type Body = WireInput;
     const FORMAT: &'static str = wire::FILE_MESSAGE;
 
-    fn to_body<'a>(
+    fn make_body<'a>(
         nats: &'a Nats,
         job: &'a Job,
         value: &'a InputFile,
@@ -856,7 +856,7 @@ impl Codec for FileCodec {
         })
     }
 
-    fn from_body<'a>(
+    fn read_body<'a>(
         &'a self,
         nats: &'a Nats,
         job: &'a mut Job,
@@ -927,7 +927,7 @@ impl Codec for MapCodec {
     type Body = WireMatched;
     const FORMAT: &'static str = wire::MAP_MESSAGE;
 
-    fn to_body<'a>(
+    fn make_body<'a>(
         nats: &'a Nats,
         _job: &'a Job,
         m: &'a MatchedShape,
@@ -963,7 +963,7 @@ impl Codec for MapCodec {
         })
     }
 
-    fn from_body<'a>(
+    fn read_body<'a>(
         &'a self,
         nats: &'a Nats,
         _job: &'a mut Job,
