@@ -149,9 +149,13 @@ pub fn boundary_loops(mesh: &Mesh) -> Vec<Vec<usize>> {
 }
 
 /// The mesh with its small holes closed: every boundary loop whose perimeter is at most
-/// `max_perimeter` gets a vertex at its centroid and a fan of triangles, oriented like the
-/// surrounding faces. The input's vertices keep their indices; the added ones follow them.
-/// Returns the filled mesh and the number of loops closed.
+/// `max_perimeter` is covered by a patch of rings that shrink towards its centroid, spaced about
+/// one boundary edge apart (a hole a few edges wide gets a plain centroid fan), then relaxed
+/// towards a membrane with the boundary held; the patch is oriented like the surrounding faces.
+/// Well-shaped patch triangles keep the cotangent weights and the lumped mass of the patch
+/// like the rest of the surface's (a fan over a wide hole is a spray of slivers whose centre
+/// carries the whole hole's mass). The input's vertices keep their indices; the added ones
+/// follow them. Returns the filled mesh and the number of loops closed.
 ///
 /// ```
 /// use shapeforest::mesh::{fill_holes, Mesh};
@@ -173,29 +177,12 @@ pub fn fill_holes(mesh: &Mesh, max_perimeter: f64) -> (Mesh, usize) {
     let mut faces = mesh.faces.clone();
     let mut closed = 0;
     for chain in boundary_loops(mesh) {
-        let len = chain.len();
-        let perimeter: f64 = (0..len)
-            .map(|i| {
-                let (a, b) = (mesh.vertices[chain[i]], mesh.vertices[chain[(i + 1) % len]]);
-                ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-            })
-            .sum();
+        let points: Vec<[f64; 3]> = chain.iter().map(|&v| mesh.vertices[v]).collect();
+        let perimeter: f64 = (0..points.len()).map(|i| dist(points[i], points[(i + 1) % points.len()])).sum();
         if perimeter > max_perimeter {
             continue;
         }
-        let mut c = [0.0; 3];
-        for &v in &chain {
-            for (cd, x) in c.iter_mut().zip(mesh.vertices[v]) {
-                *cd += x / len as f64;
-            }
-        }
-        let centre = vertices.len();
-        vertices.push(c);
-        for i in 0..len {
-            // Boundary edge a → b belongs to a face on its left; the fill triangle runs b → a.
-            let (a, b) = (chain[i], chain[(i + 1) % len]);
-            faces.push([b, a, centre]);
-        }
+        fill_loop(&chain, &points, perimeter, &mut vertices, &mut faces);
         closed += 1;
     }
     match Mesh::new(vertices, faces) {
@@ -204,10 +191,180 @@ pub fn fill_holes(mesh: &Mesh, max_perimeter: f64) -> (Mesh, usize) {
     }
 }
 
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Appends the patch of one boundary loop (`chain`, at `points`) to `vertices` / `faces`.
+fn fill_loop(
+    chain: &[usize],
+    points: &[[f64; 3]],
+    perimeter: f64,
+    vertices: &mut Vec<[f64; 3]>,
+    faces: &mut Vec<[usize; 3]>,
+) {
+    let n = chain.len();
+    let mut centre = [0.0; 3];
+    for p in points {
+        for (c, x) in centre.iter_mut().zip(p) {
+            *c += x / n as f64;
+        }
+    }
+    let edge = perimeter / n as f64;
+    let radius = points.iter().map(|&p| dist(p, centre)).sum::<f64>() / n as f64;
+    let rings = ((radius / edge).floor() as usize).saturating_sub(1).min(64);
+    // Arc-length parameter of each loop vertex, for placing the rings' vertices.
+    let mut arc = Vec::with_capacity(n + 1);
+    arc.push(0.0);
+    for i in 0..n {
+        arc.push(arc[i] + dist(points[i], points[(i + 1) % n]) / perimeter.max(f64::MIN_POSITIVE));
+    }
+    let on_loop = |u: f64| -> [f64; 3] {
+        let i = arc.partition_point(|&a| a <= u).saturating_sub(1).min(n - 1);
+        let span = (arc[i + 1] - arc[i]).max(f64::MIN_POSITIVE);
+        let t = ((u - arc[i]) / span).clamp(0.0, 1.0);
+        let (a, b) = (points[i], points[(i + 1) % n]);
+        [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), a[2] + t * (b[2] - a[2])]
+    };
+    let first_new = vertices.len();
+    // The outer ring is the loop itself; each inner ring has fewer vertices, in proportion.
+    let mut outer: Vec<usize> = chain.to_vec();
+    let mut outer_u: Vec<f64> = arc[..n].to_vec();
+    for r in 1..=rings {
+        let t = r as f64 / (rings + 1) as f64;
+        let count = ((n as f64 * (1.0 - t)).round() as usize).max(3);
+        let inner: Vec<usize> = (vertices.len()..vertices.len() + count).collect();
+        let inner_u: Vec<f64> = (0..count).map(|j| j as f64 / count as f64).collect();
+        for &u in &inner_u {
+            let q = on_loop(u);
+            vertices.push([
+                q[0] + t * (centre[0] - q[0]),
+                q[1] + t * (centre[1] - q[1]),
+                q[2] + t * (centre[2] - q[2]),
+            ]);
+        }
+        zip_rings(&outer, &outer_u, &inner, &inner_u, faces);
+        outer = inner;
+        outer_u = inner_u;
+    }
+    let c = vertices.len();
+    vertices.push(centre);
+    let m = outer.len();
+    for i in 0..m {
+        faces.push([outer[(i + 1) % m], outer[i], c]);
+    }
+    relax(first_new, vertices, &faces[faces.len() - patch_faces(n, rings)..]);
+}
+
+/// Triangles of a patch over a loop of `n` vertices with `rings` inner rings.
+fn patch_faces(n: usize, rings: usize) -> usize {
+    let mut total = 0;
+    let mut outer = n;
+    for r in 1..=rings {
+        let t = r as f64 / (rings + 1) as f64;
+        let count = ((n as f64 * (1.0 - t)).round() as usize).max(3);
+        total += outer + count;
+        outer = count;
+    }
+    total + outer
+}
+
+/// Triangulates the band between ring `outer` (oriented like the loop: the surface lies to the
+/// left of `outer[i] → outer[i+1]`) and the smaller ring `inner`, by advancing along whichever
+/// ring's next parameter comes first.
+fn zip_rings(
+    outer: &[usize],
+    outer_u: &[f64],
+    inner: &[usize],
+    inner_u: &[f64],
+    faces: &mut Vec<[usize; 3]>,
+) {
+    let (m, k) = (outer.len(), inner.len());
+    let next = |u: &[f64], i: usize| if i + 1 < u.len() { u[i + 1] } else { 1.0 };
+    let (mut i, mut j) = (0, 0);
+    while i < m || j < k {
+        let advance_outer = j == k || (i < m && next(outer_u, i) <= next(inner_u, j));
+        if advance_outer {
+            faces.push([outer[(i + 1) % m], outer[i], inner[j % k]]);
+            i += 1;
+        } else {
+            faces.push([outer[i % m], inner[j], inner[(j + 1) % k]]);
+            j += 1;
+        }
+    }
+}
+
+/// A few rounds of umbrella smoothing of the patch's own vertices (index ≥ `first_new`), the
+/// loop held: the rings relax into a membrane spanning the hole.
+fn relax(first_new: usize, vertices: &mut [[f64; 3]], patch: &[[usize; 3]]) {
+    let added = vertices.len() - first_new;
+    if added <= 1 {
+        return;
+    }
+    for _ in 0..10 {
+        let mut sum = vec![[0.0; 3]; added];
+        let mut count = vec![0usize; added];
+        for f in patch {
+            for e in 0..3 {
+                let (a, b) = (f[e], f[(e + 1) % 3]);
+                for (x, y) in [(a, b), (b, a)] {
+                    if x >= first_new {
+                        let s = &mut sum[x - first_new];
+                        for d in 0..3 {
+                            s[d] += vertices[y][d];
+                        }
+                        count[x - first_new] += 1;
+                    }
+                }
+            }
+        }
+        for (i, (s, c)) in sum.iter().zip(&count).enumerate() {
+            if *c > 0 {
+                vertices[first_new + i] = [s[0] / *c as f64, s[1] / *c as f64, s[2] / *c as f64];
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::synth::icosphere;
+
+    #[test]
+    fn a_wide_hole_gets_a_patch_of_well_shaped_triangles() {
+        // A unit sphere without its cap above z = 0.8: one loop of radius ~0.6, ~10 edges wide.
+        let sphere = icosphere(4, 1.0);
+        let area_of = |m: &Mesh, f: &[usize; 3]| {
+            crate::mesh::triangle_area(m.vertices[f[0]], m.vertices[f[1]], m.vertices[f[2]])
+        };
+        let keep: Vec<bool> = sphere.vertices.iter().map(|p| p[2] < 0.8).collect();
+        let open = submesh(&sphere, &keep).unwrap().0;
+        let (filled, closed) = fill_holes(&open, 10.0);
+        assert_eq!(closed, 1);
+        let s = filled.summary();
+        assert!(s.is_closed() && s.n_non_manifold_edges == 0, "{s:?}");
+        assert_eq!(s.n_vertices as i64 - s.n_edges as i64 + s.n_faces as i64, 2, "a sphere again");
+        assert!(filled.n_vertices() > open.n_vertices() + 20, "rings, not a single centre vertex");
+        // No sliver fan: the patch's largest triangle is like the surface's.
+        let mut areas: Vec<f64> = open.faces.iter().map(|f| area_of(&open, f)).collect();
+        areas.sort_by(f64::total_cmp);
+        let median = areas[areas.len() / 2];
+        let patch = &filled.faces[open.n_faces()..];
+        let largest = patch.iter().map(|f| area_of(&filled, f)).fold(0.0, f64::max);
+        assert!(largest < 4.0 * median, "patch triangle of area {largest}, surface median {median}");
+        // A membrane across the hole: about the area of the flat disc the loop spans.
+        let loops = boundary_loops(&open);
+        let n = loops[0].len() as f64;
+        let c = loops[0].iter().fold([0.0; 3], |c, &v| {
+            let p = open.vertices[v];
+            [c[0] + p[0] / n, c[1] + p[1] / n, c[2] + p[2] / n]
+        });
+        let r = loops[0].iter().map(|&v| dist(open.vertices[v], c)).sum::<f64>() / n;
+        let patch_area: f64 = patch.iter().map(|f| area_of(&filled, f)).sum();
+        let disc = std::f64::consts::PI * r * r;
+        assert!((patch_area / disc - 1.0).abs() < 0.1, "patch {patch_area}, disc {disc}");
+    }
 
     #[test]
     fn pieces_take_the_match_of_the_nearest_part_vertex() {
