@@ -10,6 +10,7 @@ mod match_cmd;
 mod perturb;
 mod predict;
 mod run;
+mod scale;
 mod train;
 mod view;
 mod visual;
@@ -52,6 +53,13 @@ pub enum Command {
     Run(run::RunArgs),
     /// The watch-folder daemon: match scans arriving in incoming/, learn from labeled/.
     Watch(run::WatchArgs),
+    /// Run some or all stages of a pipeline as a worker on NATS JetStream (any number of
+    /// workers, on any number of machines, share the work).
+    Worker(scale::WorkerArgs),
+    /// Publish scans (or labelled shapes, or a model) to the workers through NATS JetStream.
+    Submit(scale::SubmitArgs),
+    /// Write the workers' results into OUT/matched/ and OUT/rejected/ (the daemon's layout).
+    Results(scale::ResultsArgs),
 }
 
 /// Sets up `tracing` output on stderr (`quiet`: errors only, unless `RUST_LOG` says otherwise).
@@ -82,5 +90,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::View(args) => view::run(args),
         Command::Run(args) => run::run(args),
         Command::Watch(args) => run::watch(args),
+        Command::Worker(args) => scale::worker(args),
+        Command::Submit(args) => scale::submit(args),
+        Command::Results(args) => scale::results(args),
     }
 }

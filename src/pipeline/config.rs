@@ -58,6 +58,7 @@ use super::{
     },
     model::LiveModel,
     store::DataDir,
+    transport::Dynamic,
 };
 use crate::geodesic::HeatParams;
 
@@ -261,6 +262,49 @@ pub struct Settings {
     /// Limits on input sizes (`[settings.limits]`; see [`crate::limits::Limits`]).
     #[serde(default)]
     pub limits: crate::limits::Limits,
+    /// How edges travel: `in-process` (default: bounded channels in one process) or `nats`
+    /// (NATS JetStream between worker processes: `shapeforest worker`).
+    #[serde(default)]
+    pub transport: TransportKind,
+    /// The NATS server for `transport = "nats"` (the commands' `--nats` overrides it).
+    #[serde(default)]
+    pub nats_url: Option<String>,
+    /// Prefix of the pipeline's streams, buckets and subjects on the server. Default
+    /// `shapeforest`.
+    #[serde(default = "default_prefix")]
+    pub stream_prefix: String,
+    /// Seconds a delivered job may go without an acknowledgement before it is redelivered
+    /// (a worker holding it sends progress acknowledgements meanwhile). Default 30.
+    #[serde(default = "default_ack_wait")]
+    pub nats_ack_wait_s: f64,
+    /// Deliveries of a job before it is dead-lettered and rejected. Default 5.
+    #[serde(default = "default_max_deliver")]
+    pub nats_max_deliver: u32,
+    /// Jobs delivered and unacknowledged per consuming stage, all its workers together (the
+    /// fleet's bound; each worker holds no more than its in-process channels do). Default 64.
+    #[serde(default)]
+    pub nats_max_ack_pending: Option<usize>,
+}
+
+/// The transport of a pipeline file's edges.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TransportKind {
+    /// Bounded channels inside one process.
+    #[default]
+    InProcess,
+    /// NATS JetStream streams between worker processes.
+    Nats,
+}
+
+fn default_prefix() -> String {
+    "shapeforest".into()
+}
+fn default_ack_wait() -> f64 {
+    30.0
+}
+fn default_max_deliver() -> u32 {
+    5
 }
 
 fn default_data_dir() -> PathBuf {
@@ -276,6 +320,12 @@ impl Default for Settings {
             data_dir: default_data_dir(),
             channel_capacity: default_capacity(),
             limits: crate::limits::Limits::default(),
+            transport: TransportKind::default(),
+            nats_url: None,
+            stream_prefix: default_prefix(),
+            nats_ack_wait_s: default_ack_wait(),
+            nats_max_deliver: default_max_deliver(),
+            nats_max_ack_pending: None,
         }
     }
 }
@@ -364,6 +414,17 @@ impl PipelineSpec {
         };
         if settings.channel_capacity == 0 {
             problems.push("[settings]: channel_capacity must be at least 1".into());
+        }
+        if !(settings.nats_ack_wait_s.is_finite() && settings.nats_ack_wait_s >= 1.0) {
+            problems.push("[settings]: nats_ack_wait_s must be at least 1 (seconds)".into());
+        }
+        if settings.nats_max_deliver == 0 || settings.nats_max_ack_pending == Some(0) {
+            problems.push("[settings]: nats_max_deliver and nats_max_ack_pending must be at least 1".into());
+        }
+        if settings.stream_prefix.is_empty()
+            || !settings.stream_prefix.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+        {
+            problems.push("[settings]: stream_prefix must be letters, digits, `-` or `_`".into());
         }
         if let Err(e) = settings.limits.check() {
             problems.push(format!("[settings]: {e}"));
@@ -611,8 +672,87 @@ pub fn build(
     live: Arc<LiveModel>,
     ctx: PipelineContext,
 ) -> Result<Pipeline, Error> {
+    build_with(spec, data, live, ctx, Dynamic::default(), None)
+}
+
+/// The output port of a stage this process does not run (its consumers' edges come from the
+/// transport).
+fn detached(port: PortType, name: &str) -> AnyPort {
+    match port {
+        PortType::File => AnyPort::File(Port::new(name)),
+        PortType::Shape => AnyPort::Shape(Port::new(name)),
+        PortType::Spectrum => AnyPort::Spectrum(Port::new(name)),
+        PortType::Descriptor => AnyPort::Descriptor(Port::new(name)),
+        PortType::Prediction => AnyPort::Prediction(Port::new(name)),
+        PortType::Matches => AnyPort::Matches(Port::new(name)),
+        PortType::Map => AnyPort::Map(Port::new(name)),
+    }
+}
+
+/// Connects `port` to a consumer this process does not run (through the transport).
+fn attach_remote(p: &Pipeline, port: &AnyPort, consumer: &str) {
+    match port {
+        AnyPort::File(x) => x.attach(p.connect_edge(&x.producer, consumer).0),
+        AnyPort::Shape(x) => x.attach(p.connect_edge(&x.producer, consumer).0),
+        AnyPort::Spectrum(x) => x.attach(p.connect_edge(&x.producer, consumer).0),
+        AnyPort::Descriptor(x) => x.attach(p.connect_edge(&x.producer, consumer).0),
+        AnyPort::Prediction(x) => x.attach(p.connect_edge(&x.producer, consumer).0),
+        AnyPort::Matches(x) => x.attach(p.connect_edge(&x.producer, consumer).0),
+        AnyPort::Map(x) => x.attach(p.connect_edge(&x.producer, consumer).0),
+    }
+}
+
+/// Checks that the stages `only` of `spec` can run as one worker whose edges to the other
+/// stages go through a transport that carries the port types `carries` accepts: names every
+/// edge to or from a stage outside `only` that would have to carry a payload that only
+/// travels in process.
+pub fn check_selection(
+    spec: &PipelineSpec,
+    only: &HashSet<String>,
+    carries: fn(PortType) -> bool,
+) -> Result<(), Error> {
+    let mut problems = Vec::new();
+    for n in only {
+        if spec.stage(n).is_none() {
+            problems.push(format!("`{n}` is not a stage of this pipeline"));
+        }
+    }
+    for s in &spec.stages {
+        let Some(i) = &s.input else { continue };
+        let Some(u) = spec.stage(i) else { continue };
+        if only.contains(&s.name) == only.contains(&u.name) {
+            continue;
+        }
+        if let Some(port) = u.config.ports().1 {
+            if !carries(port) {
+                problems.push(format!(
+                    "`{}` → `{}` carries {port}s, which only travel in process: run both stages in the same worker",
+                    u.name, s.name
+                ));
+            }
+        }
+    }
+    if problems.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::Config(ConfigError { file: format!("pipeline `{}`", spec.name), problems }))
+    }
+}
+
+/// [`build`] with a transport, building only the stages in `only` (all when `None`): the
+/// edges from or to the others come from the transport (see [`check_selection`]).
+pub fn build_with(
+    spec: &PipelineSpec,
+    data: &DataDir,
+    live: Arc<LiveModel>,
+    ctx: PipelineContext,
+    transport: Dynamic,
+    only: Option<&HashSet<String>>,
+) -> Result<Pipeline, Error> {
     let mut p =
         Pipeline::with_context(data.clone(), live.clone(), ctx).with_capacity(spec.settings.channel_capacity);
+    p.set_transport(transport);
+    let runs = |name: &str| only.is_none_or(|o| o.contains(name));
     let mut outputs: HashMap<String, AnyPort> = HashMap::new();
     let mut done: HashSet<String> = HashSet::new();
     // Sources first, then any stage whose input is built, until all are.
@@ -630,9 +770,20 @@ pub fn build(
                     None => continue,
                 },
             };
+            if !runs(&s.name) {
+                if let Some(port) = s.config.ports().1 {
+                    outputs.insert(s.name.clone(), detached(port, &s.name));
+                }
+                done.insert(s.name.clone());
+                continue;
+            }
             let mut b =
                 Builder { pipeline: &mut p, spec, stage: s, data, live: &live, heat: HeatParams::default() };
             if let Some(o) = s.config.build(&mut b, input)? {
+                for c in spec.stages.iter().filter(|c| c.input.as_deref() == Some(&s.name) && !runs(&c.name))
+                {
+                    attach_remote(b.pipeline, &o, &c.name);
+                }
                 outputs.insert(s.name.clone(), o);
             }
             done.insert(s.name.clone());

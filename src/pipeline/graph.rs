@@ -11,7 +11,7 @@ use super::{
     error::Error,
     model::LiveModel,
     store::DataDir,
-    transport::{InProcess, Output, Payload, Sender, Transport},
+    transport::{Dynamic, Output, Payload, Sender, Transport},
 };
 
 /// The output of an actor. Every actor given it as input gets every envelope (fan-out: clone
@@ -29,7 +29,7 @@ impl<T> Clone for Port<T> {
 }
 
 impl<T: Payload> Port<T> {
-    fn new(producer: &str) -> Self {
+    pub(crate) fn new(producer: &str) -> Self {
         Self { consumers: Arc::default(), producer: producer.to_string() }
     }
 
@@ -39,7 +39,7 @@ impl<T: Payload> Port<T> {
         Output::new(consumers)
     }
 
-    fn attach(&self, sender: Arc<dyn Sender<T>>) {
+    pub(crate) fn attach(&self, sender: Arc<dyn Sender<T>>) {
         if let Ok(mut c) = self.consumers.lock() {
             c.push(sender);
         }
@@ -64,7 +64,7 @@ type Spawn = Box<dyn FnOnce() -> tokio::task::JoinHandle<()> + Send>;
 /// let report = p.run(RunOptions::default()).unwrap();
 /// println!("{}", report.table());
 /// ```
-pub struct Pipeline<X: Transport = InProcess> {
+pub struct Pipeline<X: Transport = Dynamic> {
     ctx: PipelineContext,
     data: DataDir,
     live: Arc<LiveModel>,
@@ -158,7 +158,7 @@ impl Pipeline {
 
     /// An empty pipeline with a given context (e.g. one whose shutdown flag the caller holds).
     pub fn with_context(data: DataDir, live: Arc<LiveModel>, ctx: PipelineContext) -> Self {
-        Self { ctx, data, live, capacity: 2, spawns: Vec::new(), transport: InProcess }
+        Self { ctx, data, live, capacity: 2, spawns: Vec::new(), transport: Dynamic::default() }
     }
 }
 
@@ -176,6 +176,12 @@ impl<X: Transport> Pipeline<X> {
         self
     }
 
+    /// The same pipeline, connecting the actors added from now on with `transport`, keeping
+    /// its type (a pipeline built from a file: see [`super::config::build_with`]).
+    pub fn set_transport(&mut self, transport: X) {
+        self.transport = transport;
+    }
+
     /// The shared context (shutdown flag, metrics).
     pub fn context(&self) -> &PipelineContext {
         &self.ctx
@@ -189,6 +195,15 @@ impl<X: Transport> Pipeline<X> {
     /// The live model.
     pub fn live_model(&self) -> &Arc<LiveModel> {
         &self.live
+    }
+
+    /// Connects an edge `producer → consumer` through the pipeline's transport.
+    pub(crate) fn connect_edge<T: Payload>(
+        &self,
+        producer: &str,
+        consumer: &str,
+    ) -> (Arc<dyn Sender<T>>, Box<dyn super::transport::Receiver<T>>) {
+        self.transport.connect(producer, consumer, self.capacity)
     }
 
     /// Adds a source.

@@ -43,6 +43,9 @@ pub struct Job {
     pub started: Instant,
     /// Seconds spent in each stage so far, in order.
     pub stage_seconds: Vec<(String, f64)>,
+    /// The queue message the job came from, under a networked transport (`None` in process):
+    /// acknowledged once the job is done with, redelivered if it is lost.
+    pub delivery: Option<super::transport::Delivery>,
 }
 
 impl Job {
@@ -57,6 +60,7 @@ impl Job {
             arrived_as: None,
             started: Instant::now(),
             stage_seconds: Vec::new(),
+            delivery: None,
         }
     }
 
@@ -71,6 +75,7 @@ impl Job {
             arrived_as: path.file_name().and_then(|n| n.to_str()).map(str::to_string),
             started: Instant::now(),
             stage_seconds: Vec::new(),
+            delivery: None,
         }
     }
 

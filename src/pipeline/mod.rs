@@ -21,6 +21,8 @@
 //! - [`graph`]: [`Pipeline`], for composing actors in code with typed ports (an output may
 //!   feed several consumers).
 //! - [`error`]: the layer's [`enum@Error`].
+//! - [`nats`]: the edges on NATS JetStream (`transport = "nats"`): workers on any number of
+//!   machines, payloads in the object store, the model followed through a key-value bucket.
 //! - [`daemon`]: preparing a data folder (recovery, model loading, the synthetic bootstrap) and
 //!   running a pipeline file on it.
 //!
@@ -34,6 +36,7 @@ pub mod graph;
 pub mod lock;
 pub mod message;
 pub mod model;
+pub mod nats;
 pub mod report;
 pub mod shutdown;
 pub mod stages;
@@ -42,8 +45,8 @@ pub mod transport;
 
 pub use actor::{Emitter, PipelineContext, Sink, Source, Stage, StageMetrics, StageSummary};
 pub use config::{
-    build, parse_config, AnyPort, AnyStageConfig, Builder, ConfigError, PipelineSpec, PortType, Ports,
-    Registry, Settings, StageConfig, StageSpec, StageType,
+    build, build_with, check_selection, parse_config, AnyPort, AnyStageConfig, Builder, ConfigError,
+    PipelineSpec, PortType, Ports, Registry, Settings, StageConfig, StageSpec, StageType, TransportKind,
 };
 pub use daemon::{bootstrap_synthetic, prepare, run_pipeline, run_spec, RunSetup};
 pub use error::Error;
@@ -63,4 +66,7 @@ pub use store::{
     latest_manifest, latest_model, move_file, natural_key, read_labels, reject, reject_or_defer, unique_path,
     DataDir, InputKind, ModelManifest, Recovery,
 };
-pub use transport::{InProcess, Output, Payload, Receiver, Sender, Transport};
+pub use transport::{
+    Delivery, Dynamic, ErasedTransport, InProcess, Output, Payload, Receiver, Sender, Settle, Settling,
+    Transport,
+};

@@ -177,3 +177,186 @@ impl<T: Payload> Output<T> {
         }
     }
 }
+
+/// How a delivery from a durable queue ends: [`Settle::settle`] is called once, with `true`
+/// when the job is done with (its output published further, or consumed by a sink) and
+/// `false` when it must be delivered again (a worker gave it up, e.g. at shutdown).
+pub trait Settle: Send + Sync {
+    /// Ends the delivery.
+    fn settle(&self, done: bool);
+}
+
+/// A job's claim on the queue message it came from (a networked transport's delivery), carried
+/// in [`super::Job::delivery`] through in-process stages. Each clone (a fan-out copy of the
+/// job) must be marked [`Delivery::done`]; once all are dropped the message is acknowledged,
+/// or handed back for redelivery if any copy was dropped unfinished (the job was lost in a
+/// panic, a shutdown, a dropped channel).
+pub struct Delivery {
+    inner: Arc<DeliveryInner>,
+    done: bool,
+}
+
+struct DeliveryInner {
+    key: String,
+    settle: Box<dyn Settle>,
+    lost: std::sync::atomic::AtomicBool,
+}
+
+impl Delivery {
+    /// A delivery identified by `key` (unique per job: the content hash and a job number),
+    /// ended through `settle`.
+    pub fn new(key: impl Into<String>, settle: impl Settle + 'static) -> Self {
+        let inner = DeliveryInner {
+            key: key.into(),
+            settle: Box::new(settle),
+            lost: std::sync::atomic::AtomicBool::new(false),
+        };
+        Self { inner: Arc::new(inner), done: false }
+    }
+
+    /// The job's key on the wire.
+    pub fn key(&self) -> &str {
+        &self.inner.key
+    }
+
+    /// This copy of the job is done with.
+    pub fn done(mut self) {
+        self.done = true;
+    }
+}
+
+impl Clone for Delivery {
+    fn clone(&self) -> Self {
+        Self { inner: self.inner.clone(), done: false }
+    }
+}
+
+impl Drop for Delivery {
+    fn drop(&mut self) {
+        if !self.done {
+            self.inner.lost.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    }
+}
+
+impl Drop for DeliveryInner {
+    fn drop(&mut self) {
+        self.settle.settle(!self.lost.load(std::sync::atomic::Ordering::Relaxed));
+    }
+}
+
+impl std::fmt::Debug for Delivery {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Delivery({})", self.inner.key)
+    }
+}
+
+/// The receiving end of a sink's edge under a networked transport: a job's [`Delivery`] is
+/// held here while the sink consumes it and marked done when the sink asks for the next job
+/// (a sink consumes one job at a time), so the queue message is acknowledged only after the
+/// result is written. An interrupted job is handed back instead.
+pub struct Settling<T> {
+    inner: Arc<dyn Receiver<T>>,
+    held: std::sync::Mutex<Option<Delivery>>,
+}
+
+impl<T: Payload> Settling<T> {
+    /// Wraps the receiver of a sink's edge.
+    pub fn new(inner: Arc<dyn Receiver<T>>) -> Self {
+        Self { inner, held: std::sync::Mutex::new(None) }
+    }
+
+    fn finish_held(&self) {
+        if let Ok(mut h) = self.held.lock() {
+            if let Some(d) = h.take() {
+                d.done();
+            }
+        }
+    }
+}
+
+impl<T: Payload> Receiver<T> for Settling<T> {
+    fn recv(&self) -> BoxFuture<'_, Option<Envelope<T>>> {
+        self.finish_held();
+        Box::pin(async move {
+            let mut env = self.inner.recv().await?;
+            let interrupted =
+                matches!(&env.body, Err(f) if f.kind == super::message::FailureKind::Interrupted);
+            if let Some(d) = env.job.delivery.take() {
+                if interrupted {
+                    drop(d); // not done: delivered again
+                } else if let Ok(mut h) = self.held.lock() {
+                    *h = Some(d);
+                }
+            }
+            Some(env)
+        })
+    }
+
+    fn is_empty(&self) -> bool {
+        self.inner.is_empty()
+    }
+}
+
+impl<T> Drop for Settling<T> {
+    fn drop(&mut self) {
+        // The sink has finished (its loop ended after consuming the last job).
+        if let Ok(mut h) = self.held.lock() {
+            if let Some(d) = h.take() {
+                d.done();
+            }
+        }
+    }
+}
+
+/// A transport chosen at run time, in object-safe form (what a pipeline file's `transport`
+/// setting selects): it connects the edges it carries and leaves the others in process.
+pub trait ErasedTransport: Send + Sync + 'static {
+    /// Connects `producer → consumer` for the payload type `payload`: a boxed
+    /// `(Arc<dyn Sender<T>>, Box<dyn Receiver<T>>)` for that `T`, or `None` to connect the
+    /// edge in process.
+    fn connect_erased(
+        &self,
+        producer: &str,
+        consumer: &str,
+        capacity: usize,
+        payload: std::any::TypeId,
+    ) -> Option<Box<dyn std::any::Any>>;
+    /// Whether `consumer` is a sink (its receiver settles deliveries, see [`Settling`]).
+    fn is_sink(&self, consumer: &str) -> bool;
+}
+
+/// The transport of a pipeline built from a file: [`InProcess`] by default, or an
+/// [`ErasedTransport`] (e.g. NATS JetStream) for the edges it carries.
+#[derive(Clone, Default)]
+pub struct Dynamic(Option<Arc<dyn ErasedTransport>>);
+
+impl Dynamic {
+    /// Edges through `transport` (those it carries), the rest in process.
+    pub fn new(transport: Arc<dyn ErasedTransport>) -> Self {
+        Self(Some(transport))
+    }
+}
+
+impl Transport for Dynamic {
+    fn connect<T: Payload>(
+        &self,
+        producer: &str,
+        consumer: &str,
+        capacity: usize,
+    ) -> (Arc<dyn Sender<T>>, Box<dyn Receiver<T>>) {
+        let Some(x) = &self.0 else { return InProcess.connect(producer, consumer, capacity) };
+        let (tx, rx) = match x.connect_erased(producer, consumer, capacity, std::any::TypeId::of::<T>()) {
+            Some(pair) => match pair.downcast::<(Arc<dyn Sender<T>>, Box<dyn Receiver<T>>)>() {
+                Ok(pair) => *pair,
+                Err(_) => InProcess.connect(producer, consumer, capacity),
+            },
+            None => InProcess.connect(producer, consumer, capacity),
+        };
+        if x.is_sink(consumer) {
+            (tx, Box::new(Settling::new(Arc::from(rx))))
+        } else {
+            (tx, rx)
+        }
+    }
+}

@@ -1,11 +1,13 @@
 //! Fixtures shared by the integration tests: the binary, the shared data folder, labelled
 //! synthetic shapes (`labels`), the bumpy-sphere family (`bumpy`, shared with the benches), a
-//! data folder with labelled creatures and a scan, and the daemon driver (`daemon`).
+//! data folder with labelled creatures and a scan, the daemon driver (`daemon`) and a real
+//! `nats-server` for the scale-out tests (`nats`).
 #![allow(dead_code)]
 
 pub mod bumpy;
 pub mod daemon;
 pub mod labels;
+pub mod nats;
 
 use std::{
     path::{Path, PathBuf},

@@ -1,0 +1,392 @@
+//! What travels through NATS JetStream: message and object formats.
+//!
+//! A message is small: the job (number, key, name, timings), the payload's object keys and
+//! its small metadata, or the job's failure. Large parts — input files, meshes, spectra,
+//! predictions, dense maps, model versions — go to the JetStream object store under the
+//! SHA-256 of their bytes (content-addressed: a part already stored is not uploaded again).
+//! Everything is serde + rmp-serde. Every message and object starts with its format name and
+//! version ([`FORMAT_VERSION`]); a reader refuses a name or version it does not know with an
+//! error that says so, and never guesses.
+
+use std::path::Path;
+
+use serde::{de::DeserializeOwned, Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use crate::{
+    forest::Prediction,
+    mesh::Mesh,
+    regularizer::{DenseMap, RegularizerTimings, VertexMatch},
+    spectral::Spectrum,
+};
+
+/// The version of every format below. A reader accepts exactly the versions it knows.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Header naming a message's format (`shapeforest.file`, `shapeforest.map`).
+pub const FORMAT_HEADER: &str = "Shapeforest-Format";
+/// Header with the format's version.
+pub const VERSION_HEADER: &str = "Shapeforest-Version";
+/// Header with the job's key (for a message that cannot be read: its report still names it).
+pub const KEY_HEADER: &str = "Shapeforest-Key";
+/// Header with the job's shape name.
+pub const NAME_HEADER: &str = "Shapeforest-Name";
+
+/// The SHA-256 of `bytes`, as lower-case hex: an object's key.
+///
+/// ```
+/// use shapeforest::pipeline::nats::wire::content_key;
+/// assert_eq!(&content_key(b"abc")[..16], "ba7816bf8f01cfea");
+/// ```
+pub fn content_key(bytes: &[u8]) -> String {
+    let d = Sha256::digest(bytes);
+    d.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Wraps a value in its format name and version (what every message and object holds).
+#[derive(Serialize, Deserialize)]
+struct Framed<T> {
+    format: String,
+    version: u32,
+    value: T,
+}
+
+#[derive(Deserialize)]
+struct FrameHead {
+    format: String,
+    version: u32,
+}
+
+/// Encodes `value` as format `format` (rmp-serde, with field names so that a reader can tell
+/// formats apart).
+pub fn encode<T: Serialize>(format: &str, value: &T) -> Result<Vec<u8>, String> {
+    rmp_serde::to_vec_named(&Framed { format: format.to_string(), version: FORMAT_VERSION, value })
+        .map_err(|e| format!("cannot encode {format}: {e}"))
+}
+
+/// Decodes bytes written by [`encode`] as `format`, refusing another format or an unknown
+/// version.
+///
+/// ```
+/// use shapeforest::pipeline::nats::wire::{decode, encode};
+/// let b = encode("shapeforest.test", &vec![1u32, 2]).unwrap();
+/// assert_eq!(decode::<Vec<u32>>("shapeforest.test", &b).unwrap(), vec![1, 2]);
+/// assert!(decode::<Vec<u32>>("shapeforest.other", &b).unwrap_err().contains("shapeforest.test"));
+/// assert!(decode::<Vec<u32>>("shapeforest.test", b"junk").is_err());
+/// ```
+pub fn decode<T: DeserializeOwned>(format: &str, bytes: &[u8]) -> Result<T, String> {
+    let head: FrameHead = rmp_serde::from_slice(bytes)
+        .map_err(|e| format!("not a shapeforest {format} (cannot read its header: {e})"))?;
+    if head.format != format {
+        return Err(format!("expected {format}, found {}", crate::limits::escape_name(&head.format)));
+    }
+    check_version(format, head.version)?;
+    let f: Framed<T> =
+        rmp_serde::from_slice(bytes).map_err(|e| format!("{format} version {}: {e}", head.version))?;
+    Ok(f.value)
+}
+
+/// Whether this build reads `version` of `format`.
+pub fn check_version(format: &str, version: u32) -> Result<(), String> {
+    if version != FORMAT_VERSION {
+        return Err(format!(
+            "{format} version {version} is not known to this worker (it reads version {FORMAT_VERSION}); \
+             a newer shapeforest wrote it"
+        ));
+    }
+    Ok(())
+}
+
+/// A job as it travels: everything of [`crate::pipeline::Job`] that means something on
+/// another machine (not its local paths).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WireJob {
+    /// Job number.
+    pub id: u64,
+    /// Unique key of the job: its input's content key and a nonce (`HASH16-NONCE`); the
+    /// idempotent sink and the streams' de-duplication use it.
+    pub key: String,
+    /// Shape name.
+    pub name: String,
+    /// The file name the input arrived under.
+    pub arrived_as: Option<String>,
+    /// Seconds spent in each stage so far.
+    pub stage_seconds: Vec<(String, f64)>,
+    /// When the job entered the system (milliseconds since the Unix epoch), for latencies.
+    pub submitted_unix_ms: u64,
+}
+
+/// A failure as it travels.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WireFailure {
+    /// The stage that failed.
+    pub stage: String,
+    /// `bad-input` or `internal` (interrupted jobs are not sent: they are redelivered).
+    pub kind: String,
+    /// The error.
+    pub message: String,
+}
+
+/// An object of the store, named by its content key.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BlobRef {
+    /// Content key (SHA-256 hex).
+    pub key: String,
+    /// Size in bytes.
+    pub size: u64,
+}
+
+/// A file of a job (input, label map, companion): its name and contents' key.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WireFileRef {
+    /// File name (no folder).
+    pub name: String,
+    /// Its contents.
+    pub blob: BlobRef,
+}
+
+/// The payload of a `file` edge: an input file and what travels with it.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WireInput {
+    /// The mesh file.
+    pub mesh: WireFileRef,
+    /// Its label map, for a labelled shape.
+    pub labels: Option<WireFileRef>,
+    /// Label = vertex index (a class sharing one vertex indexing).
+    pub identity_labels: bool,
+    /// Files that travel with it (the `.tri` of a TOSCA `.vert`).
+    pub companions: Vec<WireFileRef>,
+}
+
+/// The payload of a `map` edge: a matched scan, every part in the object store.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WireMatched {
+    /// [`Mesh`], format `shapeforest.mesh`.
+    pub mesh: BlobRef,
+    /// Per-vertex labels, format `shapeforest.labels` (labelled shapes only).
+    pub labels: Option<BlobRef>,
+    /// [`Spectrum`], format `shapeforest.spectrum`.
+    pub spectrum: BlobRef,
+    /// [`Prediction`], format `shapeforest.prediction`.
+    pub prediction: BlobRef,
+    /// [`DenseMap`], format `shapeforest.dense-map`.
+    pub dense: BlobRef,
+    /// The model version the job was matched with (its bundle is `model-vN` in the store).
+    pub model_version: u64,
+    /// For a scan matched on a part of itself: the whole scan and how the part was made.
+    pub partial: Option<WirePartial>,
+}
+
+/// A scan matched on a part of itself ([`crate::pipeline::PartialScan`]).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WirePartial {
+    /// The whole scan, format `shapeforest.mesh`.
+    pub scan: BlobRef,
+    /// The part, format `shapeforest.mesh`.
+    pub part: BlobRef,
+    /// `kept[i]`: the scan vertex that part vertex `i` is, format `shapeforest.kept`.
+    pub kept: Option<BlobRef>,
+    /// Connected components of the scan.
+    pub components: usize,
+    /// Holes closed for the spectrum.
+    pub holes_closed: usize,
+    /// The area the part's spectrum is normalised by, relative to its own.
+    pub scale_ratio: f64,
+}
+
+/// A message: the job and its payload or failure.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WireEnvelope<B> {
+    /// The job.
+    pub job: WireJob,
+    /// The payload, or why there is none.
+    pub body: Result<B, WireFailure>,
+}
+
+/// Format name of a mesh object.
+pub const MESH: &str = "shapeforest.mesh";
+/// Format name of a labels object.
+pub const LABELS: &str = "shapeforest.labels";
+/// Format name of the vertex list of a scan's part.
+pub const KEPT: &str = "shapeforest.kept";
+/// Format name of a spectrum object.
+pub const SPECTRUM: &str = "shapeforest.spectrum";
+/// Format name of a prediction object.
+pub const PREDICTION: &str = "shapeforest.prediction";
+/// Format name of a dense-map object.
+pub const DENSE_MAP: &str = "shapeforest.dense-map";
+/// Format name of a model bundle object.
+pub const MODEL_BUNDLE: &str = "shapeforest.model-bundle";
+/// Format name of a `file` message.
+pub const FILE_MESSAGE: &str = "shapeforest.file";
+/// Format name of a `map` message.
+pub const MAP_MESSAGE: &str = "shapeforest.map";
+
+/// A prediction's arrays (it keeps them private; [`Prediction::from_parts`] checks them again
+/// when read back).
+#[derive(Serialize, Deserialize)]
+pub struct WirePrediction {
+    n_labels: usize,
+    offsets: Vec<usize>,
+    labels: Vec<u32>,
+    probs: Vec<f32>,
+}
+
+impl WirePrediction {
+    /// The arrays of `p`.
+    pub fn of(p: &Prediction) -> Self {
+        let n = p.n_vertices();
+        let mut offsets = Vec::with_capacity(n + 1);
+        let (mut labels, mut probs) = (Vec::new(), Vec::new());
+        offsets.push(0);
+        for v in 0..n {
+            let (l, q) = p.posterior(v);
+            labels.extend_from_slice(l);
+            probs.extend_from_slice(q);
+            offsets.push(labels.len());
+        }
+        Self { n_labels: p.n_labels(), offsets, labels, probs }
+    }
+
+    /// The prediction, checked.
+    pub fn into_prediction(self) -> Result<Prediction, String> {
+        Prediction::from_parts(self.n_labels, self.offsets, self.labels, self.probs)
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// A dense matrix, column-major (faer's `Mat` has no serde of its own).
+#[derive(Serialize, Deserialize)]
+struct WireMat {
+    rows: usize,
+    cols: usize,
+    data: Vec<f64>,
+}
+
+impl WireMat {
+    fn of(m: &faer::Mat<f64>) -> Self {
+        let mut data = Vec::with_capacity(m.nrows() * m.ncols());
+        for j in 0..m.ncols() {
+            for i in 0..m.nrows() {
+                data.push(m[(i, j)]);
+            }
+        }
+        Self { rows: m.nrows(), cols: m.ncols(), data }
+    }
+
+    fn into_mat(self) -> Result<faer::Mat<f64>, String> {
+        if self.rows.checked_mul(self.cols) != Some(self.data.len()) {
+            return Err(format!("a {}×{} matrix with {} entries", self.rows, self.cols, self.data.len()));
+        }
+        Ok(faer::Mat::from_fn(self.rows, self.cols, |i, j| self.data[j * self.rows + i]))
+    }
+}
+
+/// Every field of a [`DenseMap`].
+#[derive(Serialize, Deserialize)]
+pub struct WireDense {
+    map: Vec<usize>,
+    anchor_map: Vec<usize>,
+    grown_anchors: usize,
+    dense_orientation: Option<f64>,
+    reoriented: bool,
+    spectral_map: Vec<usize>,
+    fmap_map: Vec<usize>,
+    refined_map: Option<Vec<usize>>,
+    forest_map: Vec<Option<usize>>,
+    fmap_predicted: WireMat,
+    fmap: WireMat,
+    matches: Vec<VertexMatch>,
+    orientation_score: f64,
+    mirror_rejected: bool,
+    timings: RegularizerTimings,
+}
+
+impl WireDense {
+    /// The fields of `d`.
+    pub fn of(d: &DenseMap) -> Self {
+        Self {
+            map: d.map.clone(),
+            anchor_map: d.anchor_map.clone(),
+            grown_anchors: d.grown_anchors,
+            dense_orientation: d.dense_orientation,
+            reoriented: d.reoriented,
+            spectral_map: d.spectral_map.clone(),
+            fmap_map: d.fmap_map.clone(),
+            refined_map: d.refined_map.clone(),
+            forest_map: d.forest_map.clone(),
+            fmap_predicted: WireMat::of(&d.fmap_predicted),
+            fmap: WireMat::of(&d.fmap),
+            matches: d.matches.clone(),
+            orientation_score: d.orientation_score,
+            mirror_rejected: d.mirror_rejected,
+            timings: d.timings,
+        }
+    }
+
+    /// The dense map, checked against the scan's vertex count.
+    pub fn into_dense(self, n_vertices: usize) -> Result<DenseMap, String> {
+        if self.map.len() != n_vertices {
+            return Err(format!("dense map: {} entries for {n_vertices} vertices", self.map.len()));
+        }
+        Ok(DenseMap {
+            map: self.map,
+            anchor_map: self.anchor_map,
+            grown_anchors: self.grown_anchors,
+            dense_orientation: self.dense_orientation,
+            reoriented: self.reoriented,
+            spectral_map: self.spectral_map,
+            fmap_map: self.fmap_map,
+            refined_map: self.refined_map,
+            forest_map: self.forest_map,
+            fmap_predicted: self.fmap_predicted.into_mat()?,
+            fmap: self.fmap.into_mat()?,
+            matches: self.matches,
+            orientation_score: self.orientation_score,
+            mirror_rejected: self.mirror_rejected,
+            timings: self.timings,
+        })
+    }
+}
+
+/// A model version as one object: the files of a data folder that [`crate::pipeline::load_live_model`]
+/// reads (the manifest and model file in `models/`, the reference's mesh and label map in
+/// `training/`), by path relative to the data folder.
+#[derive(Serialize, Deserialize)]
+pub struct ModelBundle {
+    /// Model version.
+    pub version: u64,
+    /// `(relative path, contents)`.
+    pub files: Vec<(String, Vec<u8>)>,
+}
+
+impl ModelBundle {
+    /// Writes the files below `root`, refusing paths that would leave it.
+    pub fn unpack(&self, root: &Path) -> Result<(), String> {
+        for (rel, bytes) in &self.files {
+            let p = Path::new(rel);
+            let ok = p.components().count() == 2
+                && p.components().all(|c| matches!(c, std::path::Component::Normal(_)))
+                && (rel.starts_with("models/") || rel.starts_with("training/"));
+            if !ok {
+                return Err(format!("model bundle v{}: a file outside models/ and training/", self.version));
+            }
+            let path = root.join(p);
+            if let Some(d) = path.parent() {
+                std::fs::create_dir_all(d).map_err(|e| format!("{}: {e}", d.display()))?;
+            }
+            crate::pipeline::atomic_write(&path, bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+        }
+        Ok(())
+    }
+}
+
+/// A mesh, for the store.
+pub fn mesh_bytes(mesh: &Mesh) -> Result<Vec<u8>, String> {
+    encode(MESH, mesh)
+}
+
+/// A spectrum, for the store.
+pub fn spectrum_bytes(s: &Spectrum) -> Result<Vec<u8>, String> {
+    encode(SPECTRUM, s)
+}

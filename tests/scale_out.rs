@@ -1,0 +1,402 @@
+//! The pipeline past one machine: real `nats-server` (JetStream, file storage), real worker
+//! processes (`shapeforest worker`, `results`, `submit`) on the watch pipeline.
+//!
+//! Each test starts its own server on a free loopback port; without `nats-server` the tests
+//! say SKIPPED (and fail under `CI=true`; see tests/common/nats.rs).
+
+mod common;
+
+use std::{
+    ffi::OsStr,
+    path::{Path, PathBuf},
+    process::{Command, Stdio},
+    thread,
+    time::{Duration, Instant},
+};
+
+use common::{daemon::*, nats::NatsServer};
+use shapeforest::pipeline::nats::{model_sync, Nats, NatsSettings};
+
+/// The watch pipeline for workers: a short ack wait (a dead worker's job comes back in 2 s)
+/// and the given extra settings.
+fn pipeline(dir: &Path, extra: &str) -> PathBuf {
+    let p = pipeline_file(&dir.join("p"), |t| {
+        t.replace("[settings]\n", &format!("[settings]\nnats_ack_wait_s = 2\n{extra}\n"))
+    });
+    assert!(std::fs::read_to_string(&p).unwrap().contains("nats_ack_wait_s = 2"));
+    p
+}
+
+fn spawn(dir: &Path, name: &str, args: &[&OsStr]) -> Daemon {
+    let log = dir.join(format!("{name}.log"));
+    let out = std::fs::OpenOptions::new().create(true).append(true).open(&log).unwrap();
+    let child = Command::new(bin())
+        .args(args)
+        .env("RUST_LOG", "info")
+        .stdin(Stdio::null())
+        .stdout(out.try_clone().unwrap())
+        .stderr(out)
+        .spawn()
+        .unwrap();
+    Daemon { child, log }
+}
+
+fn worker(dir: &Path, p: &Path, url: &str, name: &str, stages: Option<&str>) -> Daemon {
+    let data = dir.join(name);
+    let mut args: Vec<&OsStr> = vec![
+        "worker".as_ref(),
+        p.as_os_str(),
+        "--nats".as_ref(),
+        url.as_ref(),
+        "--data-dir".as_ref(),
+        data.as_os_str(),
+    ];
+    if let Some(s) = stages {
+        args.extend(["--stages".as_ref(), OsStr::new(s)]);
+    }
+    spawn(dir, name, &args)
+}
+
+fn results(dir: &Path, p: &Path, url: &str, out: &Path) -> Daemon {
+    let args: Vec<&OsStr> = vec![
+        "results".as_ref(),
+        "--pipeline".as_ref(),
+        p.as_os_str(),
+        "--nats".as_ref(),
+        url.as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ];
+    spawn(dir, "results", &args)
+}
+
+fn submit(p: &Path, url: &str, extra: &[&OsStr]) -> String {
+    let mut args: Vec<&OsStr> =
+        vec!["submit".as_ref(), "--pipeline".as_ref(), p.as_os_str(), "--nats".as_ref(), url.as_ref()];
+    args.extend_from_slice(extra);
+    let (status, out, err) = run_cli(&args, timeout());
+    assert!(status.success(), "submit failed: {out}\n{err}");
+    out
+}
+
+fn submit_files(p: &Path, url: &str, files: &[PathBuf]) {
+    let f: Vec<&OsStr> = files.iter().map(|f| f.as_os_str()).collect();
+    let out = submit(p, url, &f);
+    assert!(out.contains(&format!("submitted {} file(s)", files.len())), "{out}");
+}
+
+fn publish_model(p: &Path, url: &str, data: &Path) {
+    let out = submit(p, url, &["--model-from".as_ref(), data.as_os_str()]);
+    assert!(out.contains("current model: v"), "{out}");
+}
+
+/// Scans `first..first + n` of the test family, written into `dir`.
+fn scans(dir: &Path, first: usize, n: usize) -> Vec<PathBuf> {
+    std::fs::create_dir_all(dir).unwrap();
+    let fam = family(first + n);
+    (first..first + n)
+        .map(|i| {
+            let p = dir.join(format!("scan-creature{i}.off"));
+            shapeforest::mesh::write_mesh(&p, &fam.shapes[i]).unwrap();
+            p
+        })
+        .collect()
+}
+
+fn client(url: &str) -> std::sync::Arc<Nats> {
+    client_with(url, 64)
+}
+
+/// A client that creates edge consumers as workers with `max_ack_pending` would.
+fn client_with(url: &str, max_ack_pending: usize) -> std::sync::Arc<Nats> {
+    Nats::connect(NatsSettings {
+        url: url.into(),
+        prefix: "shapeforest".into(),
+        ack_wait: Duration::from_secs(2),
+        max_deliver: 5,
+        max_ack_pending,
+        max_object_bytes: 1 << 30,
+    })
+    .unwrap()
+}
+
+/// (waiting, delivered and unacknowledged) on an edge.
+fn backlog(nats: &Nats, producer: &str, consumer: &str) -> (u64, usize) {
+    nats.block_on(nats.edge_backlog(&nats.edge(producer, consumer))).unwrap()
+}
+
+fn wait_for(what: &str, procs: &mut [&mut Daemon], mut cond: impl FnMut() -> bool) {
+    let t0 = Instant::now();
+    while !cond() {
+        for p in procs.iter_mut() {
+            p.assert_running();
+        }
+        assert!(
+            t0.elapsed() < timeout(),
+            "timed out waiting for {what}:\n{}",
+            procs.iter().map(|p| p.log()).collect::<Vec<_>>().join("\n----\n")
+        );
+        thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn ledger(out: &Path) -> usize {
+    files_in(&out.join(".nats/done/results")).len()
+}
+
+/// Jobs the worker's stage `stage` processed, from the table it prints when it stops.
+fn jobs_of(log: &str, stage: &str) -> u64 {
+    log.lines()
+        .filter_map(|l| l.strip_prefix(stage))
+        .filter_map(|rest| rest.split_whitespace().next()?.parse().ok())
+        .next_back()
+        .unwrap_or_else(|| panic!("no `{stage}` row in:\n{log}"))
+}
+
+fn rejected_reports(out: &Path) -> Vec<String> {
+    files_in(&out.join("rejected")).into_iter().filter(|f| f.ends_with(".error.json")).collect()
+}
+
+#[test]
+fn three_workers_match_each_scan_exactly_once_as_the_daemon_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(server) = NatsServer::start(dir.path()) else { return };
+    let url = server.url();
+    // Model v1 and the in-process daemon's results for scans 6 and 7.
+    let data = trained_copy(dir.path());
+    let p = pipeline(dir.path(), "");
+    publish_model(&p, &url, &data);
+    let mut inputs: Vec<PathBuf> =
+        (6..8).map(|i| data.join(format!("matched/scan-creature{i}/scan-creature{i}.off"))).collect();
+    inputs.extend(scans(&dir.path().join("in"), 8, 4));
+    let out = dir.path().join("out");
+    let mut ws: Vec<Daemon> = (0..3).map(|i| worker(dir.path(), &p, &url, &format!("w{i}"), None)).collect();
+    let mut r = results(dir.path(), &p, &url, &out);
+    submit_files(&p, &url, &inputs);
+    {
+        let mut procs: Vec<&mut Daemon> = ws.iter_mut().collect();
+        procs.push(&mut r);
+        wait_for("6 results", &mut procs, || result_dirs(&out).len() >= 6);
+    }
+    thread::sleep(Duration::from_secs(2));
+    let names = result_dirs(&out);
+    let mut want: Vec<String> = (6..12).map(|i| format!("scan-creature{i}")).collect();
+    want.sort();
+    assert_eq!(names, want, "each scan once, nothing twice");
+    assert_eq!(ledger(&out), 6);
+    assert!(rejected_reports(&out).is_empty(), "{:?}", rejected_reports(&out));
+    for n in ["scan-creature6", "scan-creature7"] {
+        let daemon = std::fs::read_to_string(data.join(format!("matched/{n}/{n}.map.txt"))).unwrap();
+        let workers = std::fs::read_to_string(out.join(format!("matched/{n}/{n}.map.txt"))).unwrap();
+        assert!(daemon == workers, "{n}: the workers' map differs from the in-process daemon's");
+    }
+    let nats = client(&url);
+    assert_eq!(backlog(&nats, "scans", "read-scans"), (0, 0));
+    assert_eq!(backlog(&nats, "fmap", "results"), (0, 0));
+    let jobs: Vec<u64> = ws.drain(..).map(|w| jobs_of(&w.stop(), "read-scans")).collect();
+    assert_eq!(jobs.iter().sum::<u64>(), 6, "every scan read once over the workers: {jobs:?}");
+    assert!(jobs.iter().filter(|&&j| j > 0).count() >= 2, "the work was shared: {jobs:?}");
+    r.stop();
+}
+
+#[test]
+fn a_killed_workers_job_is_redelivered_and_finished_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(server) = NatsServer::start(dir.path()) else { return };
+    let url = server.url();
+    let data = trained_copy(dir.path());
+    let p = pipeline(dir.path(), "");
+    let out = dir.path().join("out");
+    let nats = client(&url);
+    // No model yet: the first worker takes the job and holds it (waiting for a model).
+    let mut a = worker(dir.path(), &p, &url, "a", None);
+    let mut r = results(dir.path(), &p, &url, &out);
+    submit_files(&p, &url, &scans(&dir.path().join("in"), 8, 1));
+    wait_for("worker a to hold the job", &mut [&mut a, &mut r], || {
+        backlog(&nats, "scans", "read-scans").1 == 1
+    });
+    thread::sleep(Duration::from_secs(3)); // beyond the ack wait: progress acks keep it with a
+    assert_eq!(backlog(&nats, "scans", "read-scans"), (0, 1), "held by a, not redelivered");
+    a.kill();
+    publish_model(&p, &url, &data);
+    let mut b = worker(dir.path(), &p, &url, "b", None);
+    wait_for("the result", &mut [&mut b, &mut r], || result_dirs(&out).len() == 1);
+    thread::sleep(Duration::from_secs(3));
+    assert_eq!(result_dirs(&out), vec!["scan-creature8".to_string()]);
+    assert_eq!(ledger(&out), 1);
+    assert_eq!(backlog(&nats, "scans", "read-scans"), (0, 0));
+    assert_eq!(jobs_of(&b.stop(), "read-scans"), 1);
+    r.stop();
+}
+
+#[test]
+fn a_server_restart_in_a_burst_loses_nothing_and_doubles_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(mut server) = NatsServer::start(dir.path()) else { return };
+    let url = server.url();
+    let data = trained_copy(dir.path());
+    let p = pipeline(dir.path(), "");
+    publish_model(&p, &url, &data);
+    let out = dir.path().join("out");
+    let mut w = worker(dir.path(), &p, &url, "w", None);
+    let mut r = results(dir.path(), &p, &url, &out);
+    submit_files(&p, &url, &scans(&dir.path().join("in"), 6, 6));
+    wait_for("a first result", &mut [&mut w, &mut r], || !result_dirs(&out).is_empty());
+    server.restart();
+    wait_for("6 results after the restart", &mut [&mut w, &mut r], || result_dirs(&out).len() >= 6);
+    thread::sleep(Duration::from_secs(3));
+    let mut want: Vec<String> = (6..12).map(|i| format!("scan-creature{i}")).collect();
+    want.sort();
+    assert_eq!(result_dirs(&out), want, "{}", server.log_text());
+    assert_eq!(ledger(&out), 6);
+    w.stop();
+    r.stop();
+}
+
+#[test]
+fn a_labelled_shape_updates_the_model_on_every_worker() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(server) = NatsServer::start(dir.path()) else { return };
+    let url = server.url();
+    let data = trained_copy(dir.path());
+    let p = pipeline(dir.path(), "");
+    publish_model(&p, &url, &data);
+    let out = dir.path().join("out");
+    let training = "read-labelled,labelled-spectra,trainer";
+    // The trainer's folder starts from the same model and training shapes.
+    let t_data = dir.path().join("t");
+    copy_tree(&data, &t_data);
+    let mut t = worker(dir.path(), &p, &url, "t", Some(training));
+    wait_for_log(&mut t, "the trainer lease", |l| l.contains("holding the trainer lease"));
+    let mut t2 = worker(dir.path(), &p, &url, "t2", Some(training));
+    let mut ws: Vec<Daemon> = (0..2).map(|i| worker(dir.path(), &p, &url, &format!("w{i}"), None)).collect();
+    let mut r = results(dir.path(), &p, &url, &out);
+    let input = dir.path().join("in");
+    submit_files(&p, &url, &scans(&input, 9, 1));
+    wait_for("the first result", &mut [&mut r], || result_dirs(&out).len() == 1);
+    let first = read_json(&out.join("matched/scan-creature9/scan-creature9.report.json"));
+    assert_eq!(first["model_version"], 1);
+    // A labelled shape: one model update, every worker switches.
+    let fam = family(9);
+    let shape = input.join("creature8.off");
+    shapeforest::mesh::write_mesh(&shape, &fam.shapes[8]).unwrap();
+    std::fs::write(input.join("creature8.labels"), identity_labels(fam.shapes[8].n_vertices())).unwrap();
+    let out_text = submit(&p, &url, &["--labelled".as_ref(), shape.as_os_str()]);
+    assert!(out_text.contains("submitted 1 file(s) to `labelled`"), "{out_text}");
+    let nats = client(&url);
+    wait_for("model v2 in the bucket", &mut [&mut t], || {
+        nats.block_on(model_sync::current_version(&nats)).unwrap().0 == 2
+    });
+    for w in ws.iter_mut() {
+        wait_for_log(w, "the switch to v2", |l| l.contains("switching to model v2"));
+    }
+    let t2_log = t2.log();
+    assert!(t2_log.contains("waiting for the trainer lease") && !t2_log.contains("holding"), "{t2_log}");
+    assert_eq!(
+        manifests(&t_data).iter().map(|m| m["version"].as_u64().unwrap()).collect::<Vec<_>>(),
+        vec![1, 2]
+    );
+    submit_files(&p, &url, &scans(&input, 10, 1));
+    wait_for("the second result", &mut [&mut r], || result_dirs(&out).len() == 2);
+    let second = read_json(&out.join("matched/scan-creature10/scan-creature10.report.json"));
+    assert_eq!(second["model_version"], 2, "the job records the version it used");
+    let map = std::fs::read_to_string(out.join("matched/scan-creature10/scan-creature10.map.txt")).unwrap();
+    assert!(map.lines().next().unwrap().contains("(model v2)"), "{}", map.lines().next().unwrap());
+    // The first trainer dies: the second takes the lease over.
+    t.kill();
+    wait_for_log(&mut t2, "the lease taken over", |l| l.contains("holding the trainer lease"));
+    for w in ws.drain(..) {
+        w.stop();
+    }
+    r.stop();
+}
+
+#[test]
+fn a_poison_message_is_dead_lettered_and_rejected_while_the_rest_flow() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(server) = NatsServer::start(dir.path()) else { return };
+    let url = server.url();
+    let data = trained_copy(dir.path());
+    let p = pipeline(dir.path(), "nats_max_deliver = 2");
+    publish_model(&p, &url, &data);
+    let out = dir.path().join("out");
+    let mut w = worker(dir.path(), &p, &url, "w", None);
+    let mut r = results(dir.path(), &p, &url, &out);
+    let nats = client(&url);
+    // A message of a format version no worker knows.
+    let edge = nats.edge("scans", "read-scans");
+    nats.block_on(async {
+        nats.ensure_stream(&edge).await.unwrap();
+        let mut h = async_nats::HeaderMap::new();
+        h.insert("Shapeforest-Format", "shapeforest.file");
+        h.insert("Shapeforest-Version", "99");
+        h.insert("Shapeforest-Key", "poison-0");
+        h.insert("Shapeforest-Name", "poison.off");
+        let ack = nats.jetstream().publish_with_headers(edge.subject.clone(), h, "??".into()).await.unwrap();
+        ack.await.unwrap();
+    });
+    submit_files(&p, &url, &scans(&dir.path().join("in"), 8, 1));
+    wait_for("the good result and the poison's report", &mut [&mut w, &mut r], || {
+        result_dirs(&out).len() == 1 && rejected_reports(&out).len() == 1
+    });
+    assert_eq!(result_dirs(&out), vec!["scan-creature8".to_string()]);
+    let report = read_json(&out.join("rejected/poison.error.json"));
+    let error = report["error"].as_str().unwrap();
+    assert!(
+        error.contains("version 99") && error.contains("2 deliveries") && error.contains("dead"),
+        "{error}"
+    );
+    let dead = nats.block_on(async {
+        let mut s = nats.jetstream().get_stream("shapeforest_DEAD").await.unwrap();
+        s.info().await.unwrap().state.messages
+    });
+    assert_eq!(dead, 1);
+    assert_eq!(backlog(&nats, "scans", "read-scans"), (0, 0));
+    w.stop();
+    r.stop();
+}
+
+/// A small closed mesh (a tetrahedron) moved by `i`: 1,000 distinct files, each too small for
+/// the pipeline's 100 eigenpairs, so each is read, rejected with a report, and acknowledged.
+fn tiny_scan(dir: &Path, i: usize) -> PathBuf {
+    let d = i as f64 * 1e-3;
+    let text = format!("OFF\n4 4 0\n{d} 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n");
+    let p = dir.join(format!("tiny{i:04}.off"));
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+#[test]
+fn a_burst_of_1000_scans_is_held_by_the_queue_not_by_the_worker() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(server) = NatsServer::start(dir.path()) else { return };
+    let url = server.url();
+    let data = trained_copy(dir.path());
+    let p = pipeline(dir.path(), "nats_max_ack_pending = 4");
+    publish_model(&p, &url, &data);
+    let input = dir.path().join("in");
+    std::fs::create_dir_all(&input).unwrap();
+    let files: Vec<PathBuf> = (0..1000).map(|i| tiny_scan(&input, i)).collect();
+    submit_files(&p, &url, &files);
+    let nats = client_with(&url, 4);
+    assert_eq!(backlog(&nats, "scans", "read-scans").0, 1000, "the burst waits in the stream");
+    let out = dir.path().join("out");
+    let mut w = worker(dir.path(), &p, &url, "w", None);
+    let mut r = results(dir.path(), &p, &url, &out);
+    let mut most_in_flight = 0;
+    wait_for("1000 reports", &mut [&mut w, &mut r], || {
+        most_in_flight = most_in_flight.max(backlog(&nats, "scans", "read-scans").1);
+        rejected_reports(&out).len() >= 1000
+    });
+    let peak = w.peak_rss().unwrap_or(0);
+    assert!(most_in_flight <= 4, "{most_in_flight} jobs in flight, max_ack_pending is 4");
+    assert!(peak < 250 << 20, "worker peak RSS {} MiB for a backlog of 1000", peak >> 20);
+    println!("1000 tiny scans: at most {most_in_flight} in flight; worker peak RSS {} MiB", peak >> 20);
+    thread::sleep(Duration::from_secs(2));
+    assert_eq!(rejected_reports(&out).len(), 1000);
+    assert_eq!(backlog(&nats, "scans", "read-scans"), (0, 0));
+    let one = read_json(&out.join("rejected/tiny0000.error.json"));
+    assert_eq!(one["kind"], "BadInput", "{one}");
+    w.stop();
+    r.stop();
+}
