@@ -27,6 +27,28 @@ fn pipeline(dir: &Path, extra: &str) -> PathBuf {
     p
 }
 
+/// What every test starts from: a temporary folder, a running server, a data folder with a
+/// trained model (not yet published) and the workers' pipeline file with `extra` settings.
+/// `None` (the test skips, saying why) where no nats-server is installed outside CI.
+struct Cluster {
+    server: NatsServer,
+    url: String,
+    data: PathBuf,
+    p: PathBuf,
+    dir: tempfile::TempDir,
+}
+
+impl Cluster {
+    fn start(extra: &str) -> Option<Cluster> {
+        let dir = tempfile::tempdir().unwrap();
+        let server = NatsServer::start(dir.path())?;
+        let url = server.url();
+        let data = trained_copy(dir.path());
+        let p = pipeline(dir.path(), extra);
+        Some(Cluster { server, url, data, p, dir })
+    }
+}
+
 fn spawn(dir: &Path, name: &str, args: &[&OsStr]) -> Daemon {
     let log = dir.join(format!("{name}.log"));
     let out = std::fs::OpenOptions::new().create(true).append(true).open(&log).unwrap();
@@ -159,12 +181,8 @@ fn rejected_reports(out: &Path) -> Vec<String> {
 
 #[test]
 fn three_workers_match_each_scan_exactly_once_as_the_daemon_does() {
-    let dir = tempfile::tempdir().unwrap();
-    let Some(server) = NatsServer::start(dir.path()) else { return };
-    let url = server.url();
+    let Some(Cluster { dir, server: _server, url, data, p }) = Cluster::start("") else { return };
     // Model v1 and the in-process daemon's results for scans 6 and 7.
-    let data = trained_copy(dir.path());
-    let p = pipeline(dir.path(), "");
     publish_model(&p, &url, &data);
     let mut inputs: Vec<PathBuf> =
         (6..8).map(|i| data.join(format!("matched/scan-creature{i}/scan-creature{i}.off"))).collect();
@@ -201,11 +219,7 @@ fn three_workers_match_each_scan_exactly_once_as_the_daemon_does() {
 
 #[test]
 fn a_killed_workers_job_is_redelivered_and_finished_once() {
-    let dir = tempfile::tempdir().unwrap();
-    let Some(server) = NatsServer::start(dir.path()) else { return };
-    let url = server.url();
-    let data = trained_copy(dir.path());
-    let p = pipeline(dir.path(), "");
+    let Some(Cluster { dir, server: _server, url, data, p }) = Cluster::start("") else { return };
     let out = dir.path().join("out");
     let nats = client(&url);
     // No model yet: the first worker takes the job and holds it (waiting for a model).
@@ -231,11 +245,7 @@ fn a_killed_workers_job_is_redelivered_and_finished_once() {
 
 #[test]
 fn a_server_restart_in_a_burst_loses_nothing_and_doubles_nothing() {
-    let dir = tempfile::tempdir().unwrap();
-    let Some(mut server) = NatsServer::start(dir.path()) else { return };
-    let url = server.url();
-    let data = trained_copy(dir.path());
-    let p = pipeline(dir.path(), "");
+    let Some(Cluster { dir, mut server, url, data, p }) = Cluster::start("") else { return };
     publish_model(&p, &url, &data);
     let out = dir.path().join("out");
     let mut w = worker(dir.path(), &p, &url, "w", None);
@@ -255,11 +265,7 @@ fn a_server_restart_in_a_burst_loses_nothing_and_doubles_nothing() {
 
 #[test]
 fn a_labelled_shape_updates_the_model_on_every_worker() {
-    let dir = tempfile::tempdir().unwrap();
-    let Some(server) = NatsServer::start(dir.path()) else { return };
-    let url = server.url();
-    let data = trained_copy(dir.path());
-    let p = pipeline(dir.path(), "");
+    let Some(Cluster { dir, server: _server, url, data, p }) = Cluster::start("") else { return };
     publish_model(&p, &url, &data);
     let out = dir.path().join("out");
     let training = "read-labelled,labelled-spectra,trainer";
@@ -313,11 +319,9 @@ fn a_labelled_shape_updates_the_model_on_every_worker() {
 
 #[test]
 fn a_poison_message_is_dead_lettered_and_rejected_while_the_rest_flow() {
-    let dir = tempfile::tempdir().unwrap();
-    let Some(server) = NatsServer::start(dir.path()) else { return };
-    let url = server.url();
-    let data = trained_copy(dir.path());
-    let p = pipeline(dir.path(), "nats_max_deliver = 2");
+    let Some(Cluster { dir, server: _server, url, data, p }) = Cluster::start("nats_max_deliver = 2") else {
+        return;
+    };
     publish_model(&p, &url, &data);
     let out = dir.path().join("out");
     let mut w = worker(dir.path(), &p, &url, "w", None);
@@ -368,11 +372,10 @@ fn tiny_scan(dir: &Path, i: usize) -> PathBuf {
 
 #[test]
 fn a_burst_of_1000_scans_is_held_by_the_queue_not_by_the_worker() {
-    let dir = tempfile::tempdir().unwrap();
-    let Some(server) = NatsServer::start(dir.path()) else { return };
-    let url = server.url();
-    let data = trained_copy(dir.path());
-    let p = pipeline(dir.path(), "nats_max_ack_pending = 4");
+    let Some(Cluster { dir, server: _server, url, data, p }) = Cluster::start("nats_max_ack_pending = 4")
+    else {
+        return;
+    };
     publish_model(&p, &url, &data);
     let input = dir.path().join("in");
     std::fs::create_dir_all(&input).unwrap();
