@@ -201,10 +201,10 @@ fn model_round_trip_and_bad_files() {
     let bytes = std::fs::read(&path).unwrap();
     assert!(matches!(RandomForest::from_bytes(b"OFF\n3 1 0\n"), Err(ForestError::NotAModel)));
     assert!(matches!(RandomForest::load(dir.path().join("missing")), Err(ForestError::Io { .. })));
-    let mut v3 = bytes.clone();
-    v3[8] = 3;
-    let e = RandomForest::from_bytes(&v3).unwrap_err();
-    assert!(matches!(e, ForestError::UnsupportedVersion { found: 3, oldest: 1, supported: 2 }), "{e}");
+    let mut v4 = bytes.clone();
+    v4[8] = 4;
+    let e = RandomForest::from_bytes(&v4).unwrap_err();
+    assert!(matches!(e, ForestError::UnsupportedVersion { found: 4, oldest: 1, supported: 3 }), "{e}");
     let mut flipped = bytes.clone();
     let mid = bytes.len() / 2;
     flipped[mid] ^= 0x40;

@@ -55,6 +55,7 @@
 //! ```
 
 mod augment;
+mod compact;
 mod io;
 mod knn;
 mod model;
