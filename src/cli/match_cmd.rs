@@ -293,6 +293,11 @@ pub fn run(args: MatchArgs) -> Result<()> {
         "reference_vertices": reference.n_vertices(),
         "to_vertices": target.as_ref().map(|t| t.0.n_vertices()),
         "n_matches": dense.matches.len(),
+        // heat-method sources solved and served from the prepared shapes' kept columns
+        "heat_columns": {
+            "scan": { "solved": test.column_counts().0, "reused": test.column_counts().1 },
+            "reference": { "solved": refp.column_counts().0, "reused": refp.column_counts().1 },
+        },
         "timings_s": {
             "load": load_s,
             "spectrum_mesh": spectrum_scan_s,

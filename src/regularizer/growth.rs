@@ -51,7 +51,9 @@ pub(super) fn grow_anchors(
         let score = orientation.mean_agreement(&start);
         return Ok(Grown { map: start, anchors: 0, orientation: score, reoriented: false });
     }
-    let a_fields = test.heat.distances_from_many(&samples)?;
+    // The sparse step's samples are the first of these (the same farthest-point sequence):
+    // their columns are kept by the test shape.
+    let a_fields = test.distance_columns(&samples)?;
     let setup = GrowthSetup { samples, a_fields, orientation };
     // Reference columns are shared by both runs: the second run's rounds mostly revisit the
     // targets of the first, and each costs a heat-method solve.
@@ -79,24 +81,21 @@ pub(super) fn grow_anchors(
 struct GrowthSetup {
     /// Farthest-point samples of the test shape.
     samples: Vec<usize>,
-    /// Distances from the samples on the test shape (`n_test × samples`, not normalised).
-    a_fields: Mat<f64>,
+    /// Distances from the samples on the test shape (one column per sample, not normalised).
+    a_fields: Vec<Arc<[f64]>>,
     /// Orientation descriptors of the test and reference shapes.
     orientation: Orientation,
 }
 
-/// Normalised (÷ √area) reference distance columns from `targets`, as f32, one block solve.
+/// Normalised (÷ √area) reference distance columns from `targets`, as f32 (the ones the
+/// reference does not keep: one block solve).
 fn reference_columns(
     reference: &PreparedShape,
     targets: &[usize],
 ) -> Result<std::collections::HashMap<usize, Vec<f32>>, Error> {
     let rs = 1.0 / reference.sqrt_area();
-    let f = reference.heat.distances_from_many(targets)?;
-    Ok(targets
-        .iter()
-        .enumerate()
-        .map(|(j, &t)| (t, f.col(j).iter().map(|&d| (d * rs) as f32).collect()))
-        .collect())
+    let f = reference.distance_columns(targets)?;
+    Ok(targets.iter().zip(f).map(|(&t, col)| (t, col.iter().map(|&d| (d * rs) as f32).collect())).collect())
 }
 
 /// What anchor growth returns.
@@ -130,7 +129,7 @@ fn grow_rounds(
     let GrowthSetup { samples, a_fields, orientation } = setup;
     let s = samples.len();
     let ts = 1.0 / test.sqrt_area();
-    let a_col = |j: usize| a_fields.col(j);
+    let a_col = |j: usize| &a_fields[j][..];
     let mut map = start;
     let n_keep = ((s as f64 * p.keep).ceil() as usize).clamp(3, s);
     let mut used = 0;
