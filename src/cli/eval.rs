@@ -190,7 +190,10 @@ impl EvalArgs {
 
     /// The regulariser's settings of the command line; `zoomout_default`: whether ZoomOut is on
     /// unless --no-zoomout says otherwise.
-    pub(super) fn regularizer_params(&self, zoomout_default: bool) -> shapeforest::regularizer::RegularizerParams {
+    pub(super) fn regularizer_params(
+        &self,
+        zoomout_default: bool,
+    ) -> shapeforest::regularizer::RegularizerParams {
         let on = self.zoomout || (zoomout_default && !self.no_zoomout);
         shapeforest::regularizer::RegularizerParams {
             zoomout: on.then(|| self.zoomout_params()),
