@@ -219,7 +219,7 @@ pub fn zoomout_on_samples(
     let mut gram = Mat::<f64>::zeros(kf, kf);
     matmul(gram.as_mut(), Accum::Replace, weighted.transpose(), phi_t.as_ref(), 1.0, Par::rayon(0));
     let fit = |targets: &[usize], k: usize, target_rows: &dyn Fn(usize, usize) -> f64| {
-        let target = Mat::from_fn(targets.len(), k, |i, j| target_rows(i, j));
+        let target = Mat::from_fn(targets.len(), k, target_rows);
         let mut rhs = Mat::<f64>::zeros(k, k);
         matmul(
             rhs.as_mut(),
