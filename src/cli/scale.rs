@@ -171,9 +171,10 @@ fn hostname() -> String {
     std::fs::read_to_string("/etc/hostname").map(|h| h.trim().to_string()).unwrap_or_else(|_| "host".into())
 }
 
-/// The stages a worker runs by default: every stage that is neither a source nor a sink,
-/// less those whose output only travels in process to a stage left out (the trainer's chain:
-/// its spectra do not travel, so it runs where the trainer is named).
+/// The stages a worker runs by default: every stage that is neither a source nor a sink
+/// (less any whose output could only travel in process to a stage left out; today every edge
+/// travels, so none is cut: the labelled shapes' spectra, too, are computed by any worker and
+/// queued for the trainer).
 fn default_stages(spec: &PipelineSpec) -> HashSet<String> {
     let mut only: HashSet<String> = spec
         .stages
