@@ -506,13 +506,32 @@ pub fn zoomout(
     check_basis("reference", reference, k_final)?;
     let mut current = c.to_owned();
     let mut k = c.nrows();
-    let mut map = point_to_point(test, reference, current.as_ref())?;
+    let mut map = point_to_point_orthogonal(test, reference, current.as_ref())?;
     while k < k_final {
         k = (k + step).min(k_final);
         current = pullback_fmap(test, reference, k, k, map.as_slice())?;
-        map = point_to_point(test, reference, current.as_ref())?;
+        map = point_to_point_orthogonal(test, reference, current.as_ref())?;
     }
     Ok((current, map))
+}
+
+/// Point-to-point map `T: M → R` of a functional map `C` (`k_test × k_ref`, pulling back from R
+/// to M) read as ZoomOut reads it: each row of `Φ_M` goes to the nearest row of `Φ_R Cᵀ`. For an
+/// orthogonal `C` this is [`point_to_point`]; for the maps ZoomOut builds (pulled back from a
+/// point map, so not quite orthogonal) it is the step of its alternating minimisation of
+/// `‖Π Φ_R Cᵀ − Φ_M‖`, which keeps the rows at full length instead of shrinking them towards
+/// the middle of the embedding.
+pub fn point_to_point_orthogonal(
+    test: &Spectrum,
+    reference: &Spectrum,
+    c: MatRef<'_, f64>,
+) -> Result<Vec<usize>, FmapError> {
+    let (kt, kr) = (c.nrows(), c.ncols());
+    check_basis("test", test, kt)?;
+    check_basis("reference", reference, kr)?;
+    let mut points = Mat::zeros(reference.n_vertices, kt);
+    matmul(points.as_mut(), Accum::Replace, basis(reference, kr), c.transpose(), 1.0, Par::rayon(0));
+    Ok(nearest_rows(basis(test, kt), points.as_ref()))
 }
 
 #[cfg(test)]
