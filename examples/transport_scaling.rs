@@ -249,7 +249,7 @@ fn main() -> Result<()> {
         // Every process connected and its consumers made.
         thread::sleep(Duration::from_secs(3));
         let before = monitor(mport, "/varz")?;
-        let stored_before = monitor(mport, "/jsz")?["store"].as_u64().unwrap_or(0);
+        let stored_before = monitor(mport, "/jsz")?["storage"].as_u64().unwrap_or(0);
         let t0 = Instant::now();
         let mut args: Vec<&std::ffi::OsStr> = vec!["submit".as_ref(), "--nats".as_ref(), url.as_ref()];
         args.extend(files.iter().map(|f| f.as_os_str()));
@@ -264,7 +264,7 @@ fn main() -> Result<()> {
         let s = t0.elapsed().as_secs_f64();
         thread::sleep(Duration::from_secs(1)); // the last acknowledgements
         let after = monitor(mport, "/varz")?;
-        let stored = monitor(mport, "/jsz")?["store"].as_u64().unwrap_or(0).saturating_sub(stored_before);
+        let stored = monitor(mport, "/jsz")?["storage"].as_u64().unwrap_or(0).saturating_sub(stored_before);
         let per = |k: &str| {
             (after[k].as_u64().unwrap_or(0).saturating_sub(before[k].as_u64().unwrap_or(0))) as f64 / n_scans as f64
         };

@@ -539,3 +539,41 @@ fn a_burst_of_1000_scans_is_held_by_the_queue_not_by_the_worker() {
     w.stop();
     r.stop();
 }
+
+/// `(deleted, objects before)` from `shapeforest gc`'s line.
+fn gc(p: &Path, url: &str, extra: &[&str]) -> (usize, usize, String) {
+    let mut args: Vec<&OsStr> = vec!["gc".as_ref(), "--pipeline".as_ref(), p.as_os_str(), "--nats".as_ref(), url.as_ref()];
+    args.extend(extra.iter().map(OsStr::new));
+    let (status, out, err) = run_cli(&args, timeout());
+    assert!(status.success(), "gc failed: {out}\n{err}");
+    let words: Vec<&str> = out.split_whitespace().collect();
+    let at = words.iter().position(|w| *w == "deleted").unwrap_or_else(|| panic!("{out}"));
+    (words[at + 1].parse().unwrap(), words[at + 3].parse().unwrap(), out)
+}
+
+#[test]
+fn gc_deletes_the_objects_of_finished_jobs_and_keeps_what_waiting_jobs_need() {
+    let Some(Cluster { dir, server: _server, url, data, p }) = Cluster::start("") else { return };
+    publish_model(&p, &url, &data);
+    let out = dir.path().join("out");
+    let mut w = worker(dir.path(), &p, &url, "w", None);
+    let mut r = results(dir.path(), &p, &url, &out);
+    submit_files(&p, &url, &scans(&dir.path().join("in"), 8, 1));
+    wait_for("the first result", &mut [&mut w, &mut r], || result_dirs(&out).len() == 1);
+    thread::sleep(Duration::from_secs(1));
+    w.stop();
+    // A second scan waits in the queue (no worker runs): its file must survive a collection.
+    submit_files(&p, &url, &scans(&dir.path().join("in2"), 9, 1));
+    let (deleted, _, text) = gc(&p, &url, &[]);
+    assert_eq!(deleted, 0, "everything is younger than the default grace: {text}");
+    let (deleted, before, text) = gc(&p, &url, &["--grace-s", "0"]);
+    assert!(deleted >= 5, "the finished job's mesh, spectrum, prediction, matches, map…: {text}");
+    assert_eq!(before - deleted, 2, "kept: the waiting scan's file and the model bundle: {text}");
+    assert!(text.contains("referring to 2 object(s)"), "{text}");
+    // The waiting scan still goes through, with the model kept.
+    let mut w = worker(dir.path(), &p, &url, "w2", None);
+    wait_for("the second result", &mut [&mut w, &mut r], || result_dirs(&out).len() == 2);
+    assert!(rejected_reports(&out).is_empty(), "{:?}", rejected_reports(&out));
+    w.stop();
+    r.stop();
+}

@@ -25,6 +25,7 @@
 //! bundles, the current version into the key-value bucket `PREFIX-model`; every worker follows
 //! it ([`model_sync`]).
 
+pub mod gc;
 pub mod model_sync;
 pub mod wire;
 
@@ -111,8 +112,45 @@ pub struct Nats {
     blobs_name: String,
     blobs_stream: stream::Stream,
     kv: kv::Store,
+    cache: std::sync::Mutex<BlobCache>,
     /// The settings.
     pub settings: NatsSettings,
+}
+
+/// Objects this process stored or read lately, by content key, up to [`BlobCache::CAPACITY`]
+/// bytes: a stage that reads what its own worker's previous stage just stored (the spectrum is
+/// read by the descriptor, forest, matcher and fmap stages) does not download it again. The
+/// keys are content hashes, so a cached object is never stale. (A FIFO of a few lines rather
+/// than an LRU crate: an object is read a few times right after it is stored, then never.)
+#[derive(Default)]
+struct BlobCache {
+    order: std::collections::VecDeque<String>,
+    objects: HashMap<String, Arc<Vec<u8>>>,
+    bytes: usize,
+}
+
+impl BlobCache {
+    /// Bytes kept at most (a 20K-vertex scan's objects are ~32 MB).
+    const CAPACITY: usize = 128 << 20;
+
+    fn get(&self, key: &str) -> Option<Arc<Vec<u8>>> {
+        self.objects.get(key).cloned()
+    }
+
+    fn insert(&mut self, key: &str, bytes: Arc<Vec<u8>>) {
+        if bytes.len() > Self::CAPACITY / 2 || self.objects.contains_key(key) {
+            return;
+        }
+        self.bytes += bytes.len();
+        self.objects.insert(key.to_string(), bytes);
+        self.order.push_back(key.to_string());
+        while self.bytes > Self::CAPACITY {
+            let Some(old) = self.order.pop_front() else { break };
+            if let Some(b) = self.objects.remove(&old) {
+                self.bytes -= b.len();
+            }
+        }
+    }
 }
 
 impl Nats {
@@ -171,7 +209,8 @@ impl Nats {
         })?;
         // `retry_on_initial_connect` returns before the connection is made; the buckets above
         // waited for it.
-        Ok(Arc::new(Self { runtime, js, blobs, blobs_name, blobs_stream, kv, settings }))
+        let cache = Default::default();
+        Ok(Arc::new(Self { runtime, js, blobs, blobs_name, blobs_stream, kv, cache, settings }))
     }
 
     /// Runs `f` to completion on the connection's runtime (from a thread that is not inside
@@ -190,20 +229,33 @@ impl Nats {
         &self.kv
     }
 
+    fn cached(&self, key: &str) -> Option<Arc<Vec<u8>>> {
+        self.cache.lock().ok().and_then(|c| c.get(key))
+    }
+
+    fn remember(&self, key: &str, bytes: Arc<Vec<u8>>) {
+        if let Ok(mut c) = self.cache.lock() {
+            c.insert(key, bytes);
+        }
+    }
+
     /// Stores `bytes` under their content key (once: a part already stored is not sent again).
     pub async fn put_blob(&self, bytes: &[u8]) -> Result<BlobRef, String> {
         let key = wire::content_key(bytes);
         let blob = BlobRef { key: key.clone(), size: bytes.len() as u64 };
-        if let Ok(info) = self.blobs.info(&key).await {
-            if info.size as u64 == blob.size && !info.deleted {
-                return Ok(blob);
-            }
+        self.remember(&key, Arc::new(bytes.to_vec()));
+        // Asked even when cached: the store may have collected it since (see [`gc`]).
+        let stored = self.blobs.info(&key).await.is_ok_and(|i| i.size as u64 == blob.size && !i.deleted);
+        if !stored {
+            let mut reader = bytes;
+            self.blobs
+                .put(key.as_str(), &mut reader)
+                .await
+                .map_err(|e| format!("cannot store object {key}: {e}"))?;
         }
-        let mut reader = bytes;
-        self.blobs
-            .put(key.as_str(), &mut reader)
-            .await
-            .map_err(|e| format!("cannot store object {key}: {e}"))?;
+        if self.cached(&key).is_none() {
+            self.remember(&key, Arc::new(bytes.to_vec()));
+        }
         Ok(blob)
     }
 
@@ -213,6 +265,9 @@ impl Nats {
         let max = self.settings.max_object_bytes;
         if blob.size > max {
             return Err(format!("object {} is {} bytes, more than the {max} allowed", blob.key, blob.size));
+        }
+        if let Some(b) = self.cached(&blob.key).filter(|b| b.len() as u64 == blob.size) {
+            return Ok(b.to_vec());
         }
         let info = self.blobs.info(&blob.key).await.map_err(|e| format!("object {}: {e}", blob.key))?;
         if info.deleted || info.size as u64 != blob.size {
@@ -241,7 +296,9 @@ impl Nats {
         if bytes.len() as u64 != blob.size || wire::content_key(&bytes) != blob.key {
             return Err(format!("object {}: its contents do not match its key", blob.key));
         }
-        Ok(bytes)
+        let bytes = Arc::new(bytes);
+        self.remember(&blob.key, bytes.clone());
+        Ok(Arc::try_unwrap(bytes).unwrap_or_else(|b| b.to_vec()))
     }
 
     /// Stream, subject and durable consumer of the edge `producer → consumer`.
