@@ -161,7 +161,8 @@ fn main() -> Result<()> {
     println!("{n_train} labelled shapes and {n_scans} scans of {n} vertices");
 
     // In process: the daemon learns the model, then matches the burst.
-    let mut daemon = spawn(&exe, &["watch".as_ref(), "--data-dir".as_ref(), data.as_os_str()], &out.join("daemon.log"))?;
+    let mut daemon =
+        spawn(&exe, &["watch".as_ref(), "--data-dir".as_ref(), data.as_os_str()], &out.join("daemon.log"))?;
     let models = data.join("models");
     while !std::fs::read_dir(&models).is_ok_and(|d| {
         d.filter_map(|e| e.ok()).any(|e| {
@@ -209,10 +210,8 @@ fn main() -> Result<()> {
             }
             thread::sleep(Duration::from_millis(100));
         }
-        let publish = Command::new(&exe)
-            .args(["submit", "--nats", &url, "--model-from"])
-            .arg(&data)
-            .output()?;
+        let publish =
+            Command::new(&exe).args(["submit", "--nats", &url, "--model-from"]).arg(&data).output()?;
         if !publish.status.success() {
             bail!("publishing the model failed: {}", String::from_utf8_lossy(&publish.stderr));
         }
@@ -266,7 +265,8 @@ fn main() -> Result<()> {
         let after = monitor(mport, "/varz")?;
         let stored = monitor(mport, "/jsz")?["storage"].as_u64().unwrap_or(0).saturating_sub(stored_before);
         let per = |k: &str| {
-            (after[k].as_u64().unwrap_or(0).saturating_sub(before[k].as_u64().unwrap_or(0))) as f64 / n_scans as f64
+            (after[k].as_u64().unwrap_or(0).saturating_sub(before[k].as_u64().unwrap_or(0))) as f64
+                / n_scans as f64
         };
         let same = result_dirs(&results.join("matched"))
             .iter()

@@ -297,7 +297,9 @@ fn dead_letters(nats: &Nats) -> Vec<String> {
         let mut errors = Vec::new();
         for seq in 1..=n {
             if let Ok(m) = s.get_raw_message(seq).await {
-                errors.push(m.headers.get("Shapeforest-Error").map(|v| v.as_str().to_string()).unwrap_or_default());
+                errors.push(
+                    m.headers.get("Shapeforest-Error").map(|v| v.as_str().to_string()).unwrap_or_default(),
+                );
             }
         }
         errors
@@ -368,7 +370,11 @@ fn a_result_written_before_its_acknowledgement_was_lost_is_not_written_again() {
         for k in ["Shapeforest-Format", "Shapeforest-Version", "Shapeforest-Key", "Shapeforest-Name"] {
             h.insert(k, raw.headers.get(k).unwrap().as_str());
         }
-        let ack = nats.jetstream().publish_with_headers(edge.subject.clone(), h, raw.payload.clone()).await.unwrap();
+        let ack = nats
+            .jetstream()
+            .publish_with_headers(edge.subject.clone(), h, raw.payload.clone())
+            .await
+            .unwrap();
         ack.await.unwrap();
     });
     wait_for_log(&mut r, "the second delivery skipped", |l| l.contains("already written as"));
@@ -542,7 +548,8 @@ fn a_burst_of_1000_scans_is_held_by_the_queue_not_by_the_worker() {
 
 /// `(deleted, objects before)` from `shapeforest gc`'s line.
 fn gc(p: &Path, url: &str, extra: &[&str]) -> (usize, usize, String) {
-    let mut args: Vec<&OsStr> = vec!["gc".as_ref(), "--pipeline".as_ref(), p.as_os_str(), "--nats".as_ref(), url.as_ref()];
+    let mut args: Vec<&OsStr> =
+        vec!["gc".as_ref(), "--pipeline".as_ref(), p.as_os_str(), "--nats".as_ref(), url.as_ref()];
     args.extend(extra.iter().map(OsStr::new));
     let (status, out, err) = run_cli(&args, timeout());
     assert!(status.success(), "gc failed: {out}\n{err}");

@@ -270,7 +270,9 @@ pub fn gc(args: GcArgs) -> Result<()> {
     let spec = read_spec(args.pipeline.as_deref())?;
     let nats = Nats::connect(NatsSettings::from_spec(&spec, args.nats.as_deref())?)?;
     let grace = Duration::from_secs_f64(args.grace_s);
-    let r = nats.block_on(shapeforest::pipeline::nats::gc::collect(&nats, args.keep_models, grace)).map_err(|e| anyhow!(e))?;
+    let r = nats
+        .block_on(shapeforest::pipeline::nats::gc::collect(&nats, args.keep_models, grace))
+        .map_err(|e| anyhow!(e))?;
     println!(
         "read {} waiting message(s) referring to {} object(s); deleted {} of {} object(s) ({:.1} MB) and model version(s) {:?}",
         r.messages,

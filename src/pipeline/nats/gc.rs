@@ -114,9 +114,8 @@ pub async fn collect(nats: &Nats, keep_models: u64, grace: Duration) -> Result<G
     }
     report.referenced = keys.len();
     // The objects.
-    let now = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs() as i64);
+    let now =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs() as i64);
     let mut list = nats.blobs.list().await.map_err(|e| format!("cannot list the objects: {e}"))?;
     let mut doomed = Vec::new();
     while let Some(info) = list.next().await {

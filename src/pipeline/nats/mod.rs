@@ -457,7 +457,13 @@ impl NatsTransport {
     }
 
     /// Both ends of an edge, boxed as [`ErasedTransport::connect_erased`] returns them.
-    fn pair<C: Codec>(&self, producer: &str, consumer: &str, capacity: usize, codec: C) -> Result<Box<dyn Any>, Error> {
+    fn pair<C: Codec>(
+        &self,
+        producer: &str,
+        consumer: &str,
+        capacity: usize,
+        codec: C,
+    ) -> Result<Box<dyn Any>, Error> {
         let tx = self.sender::<C>(producer, consumer)?;
         let rx = self.receiver(producer, consumer, capacity, codec)?;
         Ok(Box::new((tx, rx)))
@@ -761,7 +767,8 @@ fn hold(
             Settled::Failed(why) => {
                 let delivered = msg.info().map(|i| i.delivered).unwrap_or(1);
                 if delivered >= tries {
-                    let why = format!("{why} (in each of {delivered} deliveries); dead-lettered to {dead_subject}");
+                    let why =
+                        format!("{why} (in each of {delivered} deliveries); dead-lettered to {dead_subject}");
                     tracing::error!("dead letter: {why}");
                     dead_letter(&js, &dead_subject, &msg, &why).await;
                     let _ = msg.ack_with(AckKind::Term).await;
@@ -1141,7 +1148,9 @@ async fn get_spectral(nats: &Nats, w: &WireSpectral) -> Result<SpectralShape, St
     let n = shape.mesh.n_vertices();
     let spectrum: crate::spectral::Spectrum = get_decoded(nats, wire::SPECTRUM, &w.spectrum).await?;
     let k = spectrum.eigenvalues.len();
-    if spectrum.n_vertices != n || spectrum.mass.len() != n || Some(spectrum.eigenvectors.len()) != n.checked_mul(k)
+    if spectrum.n_vertices != n
+        || spectrum.mass.len() != n
+        || Some(spectrum.eigenvectors.len()) != n.checked_mul(k)
     {
         return Err(format!("a spectrum of another mesh (not {n} vertices)"));
     }
@@ -1172,7 +1181,11 @@ async fn get_prediction(nats: &Nats, blob: &BlobRef, n: usize) -> Result<crate::
     Ok(prediction)
 }
 
-async fn get_predicted(nats: &Nats, models: &ModelResolver, w: &WirePredicted) -> Result<PredictedShape, String> {
+async fn get_predicted(
+    nats: &Nats,
+    models: &ModelResolver,
+    w: &WirePredicted,
+) -> Result<PredictedShape, String> {
     let shape = get_spectral(nats, &w.spectral).await?;
     let prediction = get_prediction(nats, &w.prediction, shape.mesh().n_vertices()).await?;
     let model = models.version(w.model_version).await?;
@@ -1191,7 +1204,12 @@ impl Codec for ShapeCodec {
         Box::pin(put_shape(nats, s))
     }
 
-    fn read_body<'a>(&'a self, nats: &'a Nats, _: &'a mut Job, b: WireShape) -> BoxFuture<'a, Result<Shape, String>> {
+    fn read_body<'a>(
+        &'a self,
+        nats: &'a Nats,
+        _: &'a mut Job,
+        b: WireShape,
+    ) -> BoxFuture<'a, Result<Shape, String>> {
         Box::pin(async move { get_shape(nats, &b).await })
     }
 }
@@ -1239,7 +1257,10 @@ impl Codec for DescribedCodec {
         d: &'a DescribedShape,
     ) -> BoxFuture<'a, Result<WireDescribed, String>> {
         Box::pin(async move {
-            Ok(WireDescribed { spectral: put_spectral(nats, &d.shape).await?, model_version: d.model.version })
+            Ok(WireDescribed {
+                spectral: put_spectral(nats, &d.shape).await?,
+                model_version: d.model.version,
+            })
         })
     }
 
@@ -1382,7 +1403,8 @@ impl Codec for MapCodec {
         b: WireMatched,
     ) -> BoxFuture<'a, Result<MatchedShape, String>> {
         Box::pin(async move {
-            let shape = get_shape(nats, &WireShape { mesh: b.mesh.clone(), labels: b.labels.clone() }).await?;
+            let shape =
+                get_shape(nats, &WireShape { mesh: b.mesh.clone(), labels: b.labels.clone() }).await?;
             let n = shape.mesh.n_vertices();
             let partial = match &b.partial {
                 Some(x) => {

@@ -239,7 +239,9 @@ pub fn heat_from_wire(time_factor: f64, boundary: &str) -> Result<HeatParams, St
         "neumann" => HeatBoundary::Neumann,
         "dirichlet" => HeatBoundary::Dirichlet,
         "average" => HeatBoundary::Average,
-        other => return Err(format!("unknown heat boundary condition {:?}", crate::limits::escape_name(other))),
+        other => {
+            return Err(format!("unknown heat boundary condition {:?}", crate::limits::escape_name(other)))
+        }
     };
     if !(time_factor.is_finite() && time_factor > 0.0) {
         return Err(format!("heat time factor {time_factor} is not a positive number"));
@@ -496,7 +498,10 @@ impl WireSparse {
         let bad = self.samples.iter().any(|&v| v >= n_test)
             || self.ref_points.iter().any(|&v| v >= n_ref)
             || self.matches.iter().any(|m| m.test >= n_test || m.reference >= n_ref)
-            || self.game_matches.iter().any(|&(t, r, _)| t >= self.samples.len() || r >= self.ref_points.len())
+            || self
+                .game_matches
+                .iter()
+                .any(|&(t, r, _)| t >= self.samples.len() || r >= self.ref_points.len())
             || (test_fields.ncols() > 0 && test_fields.nrows() != n_test)
             || (ref_fields.ncols() > 0 && ref_fields.nrows() != n_ref)
             || test_fields.ncols() != ref_fields.ncols();

@@ -87,8 +87,10 @@ impl MatchSink {
     /// Where a keyed job's result is recorded: `FOLDER/.keys/KEY` holds the name of its result
     /// folder, which holds the key in `.key` (see [`MatchSink::written_before`]).
     fn key_entry(&self, key: &str) -> PathBuf {
-        let safe: String =
-            key.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
+        let safe: String = key
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' })
+            .collect();
         self.config.folder.join(".keys").join(safe)
     }
 
@@ -215,7 +217,8 @@ impl MatchSink {
             if let Some(d) = entry.parent() {
                 fs::create_dir_all(d).at(d)?;
             }
-            let target_name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let target_name =
+                target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
             crate::pipeline::atomic_write(&entry, target_name.as_bytes()).at(&entry)?;
         }
         fs::rename(&partial, &target).at(&target)?;
