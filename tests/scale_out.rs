@@ -584,3 +584,47 @@ fn gc_deletes_the_objects_of_finished_jobs_and_keeps_what_waiting_jobs_need() {
     w.stop();
     r.stop();
 }
+
+#[test]
+fn a_job_dead_lettered_for_its_deliveries_leaves_nothing_in_the_spool() {
+    use shapeforest::pipeline::{
+        nats::NatsTransport, DataDir, Envelope, ErasedTransport, InputFile, Job, LiveModel, PipelineSpec,
+        Receiver, Sender, Shutdown,
+    };
+    use std::{any::TypeId, sync::Arc};
+    let Some(Cluster { dir, server: _server, url, data: _, p }) = Cluster::start("nats_max_deliver = 1")
+    else {
+        return;
+    };
+    let spec = PipelineSpec::from_file(&p).unwrap();
+    let mut settings = NatsSettings::from_spec(&spec, Some(&url)).unwrap();
+    settings.ack_wait = Duration::from_secs(2);
+    let nats = Nats::connect(settings).unwrap();
+    let data = DataDir::new(dir.path().join("worker"));
+    let t =
+        NatsTransport::new(nats.clone(), &spec, data.clone(), Arc::new(LiveModel::new()), Shutdown::new());
+    type Pair = (Arc<dyn Sender<InputFile>>, Box<dyn Receiver<InputFile>>);
+    let (tx, rx) = *t
+        .connect_erased("scans", "read-scans", 1, TypeId::of::<InputFile>())
+        .unwrap()
+        .downcast::<Pair>()
+        .unwrap();
+    let scan = scans(&dir.path().join("in"), 8, 1).remove(0);
+    let body = Ok(InputFile { path: scan.clone(), labels: None });
+    nats.block_on(tx.send(Envelope { job: Job::for_file(1, &scan, None), body })).unwrap();
+    let spool = data.root().join(".nats/spool");
+    // The first delivery is spooled, then lost (its worker "dies": the delivery is dropped).
+    let first = nats.block_on(rx.recv()).unwrap();
+    assert!(first.body.is_ok());
+    assert_eq!(files_in(&spool).len(), 1, "spooled while held");
+    drop(first);
+    // Its second delivery is one more than max_deliver: dead-lettered, and its spool removed.
+    let second = nats.block_on(rx.recv()).unwrap();
+    let e = second.body.as_ref().unwrap_err();
+    assert!(e.message.contains("no worker finished this job in 1 deliveries"), "{e}");
+    assert!(files_in(&spool).is_empty(), "{:?}", files_in(&spool));
+    drop(second);
+    thread::sleep(Duration::from_millis(500));
+    assert!(files_in(&spool).is_empty(), "{:?}", files_in(&spool));
+    assert_eq!(dead_letters(&nats).len(), 1);
+}

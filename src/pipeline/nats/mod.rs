@@ -892,27 +892,24 @@ impl<C: Codec> Receiver<C::T> for NatsReceiver<C> {
                 let tries = i64::from(self.nats.settings.max_deliver);
                 let read = match self.read(&msg).await {
                     // Readable, but every worker that took it stopped before finishing it
-                    // (a crash, kill -9, an out-of-memory kill): it is not tried again (below).
+                    // (a crash, kill -9, an out-of-memory kill): it is not tried again, and
+                    // what reading it spooled goes now.
+                    Ok((job, _, _)) if delivered > tries => {
+                        if let Some(spool) = job.source.as_ref().and_then(|s| s.parent()) {
+                            let _ = std::fs::remove_dir_all(spool);
+                        }
+                        Err(format!(
+                            "no worker finished this job in {tries} deliveries (each one that took it stopped, \
+                             was killed or timed out); dead-lettered to {}",
+                            self.edge.dead_subject
+                        ))
+                    }
                     Ok(x) => Ok(x),
                     Err(e) if delivered > tries => Err(format!(
                         "no worker could read this message in {tries} deliveries ({e}); dead-lettered to {}",
                         self.edge.dead_subject
                     )),
                     Err(e) => Err(e),
-                };
-                if let (Ok((job, _, _)), true) = (&read, delivered > tries) {
-                    // Read (and spooled) only to be dead-lettered: its spool goes now.
-                    if let Some(spool) = job.source.as_ref().and_then(|s| s.parent()) {
-                        let _ = std::fs::remove_dir_all(spool);
-                    }
-                }
-                let read = match read {
-                    Ok(_) if delivered > tries => Err(format!(
-                        "no worker finished this job in {tries} deliveries (each one that took it stopped, \
-                         was killed or timed out); dead-lettered to {}",
-                        self.edge.dead_subject
-                    )),
-                    other => other,
                 };
                 let (job, key, body) = match read {
                     Ok(x) => x,
