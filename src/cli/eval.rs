@@ -148,6 +148,39 @@ pub struct EvalArgs {
     /// Perturbed copies per training shape and --augment kind.
     #[arg(long, default_value_t = 4)]
     pub augment_copies: usize,
+    /// Also measure the regularised map refined by ZoomOut (the `forest+reg+zo` row; with
+    /// --pairs / --protocol the maps onto the reference are refined too).
+    #[arg(long)]
+    pub zoomout: bool,
+    /// Basis functions added per ZoomOut step.
+    #[arg(long, default_value_t = 5, value_name = "N")]
+    pub zoomout_step: usize,
+    /// First basis size of ZoomOut.
+    #[arg(long, default_value_t = 20, value_name = "K")]
+    pub zoomout_start: usize,
+    /// Farthest-point samples per shape that ZoomOut's iterations run on.
+    #[arg(long, default_value_t = 3000, value_name = "N")]
+    pub zoomout_samples: usize,
+}
+
+impl EvalArgs {
+    /// The ZoomOut settings of the command line.
+    pub(super) fn zoomout_params(&self) -> shapeforest::regularizer::ZoomOutParams {
+        shapeforest::regularizer::ZoomOutParams {
+            k_start: self.zoomout_start,
+            step: self.zoomout_step,
+            samples: self.zoomout_samples,
+            ..Default::default()
+        }
+    }
+
+    /// The regulariser's settings of the command line.
+    pub(super) fn regularizer_params(&self) -> shapeforest::regularizer::RegularizerParams {
+        shapeforest::regularizer::RegularizerParams {
+            zoomout: self.zoomout.then(|| self.zoomout_params()),
+            ..Default::default()
+        }
+    }
 }
 
 /// A kind of `--augment`.
@@ -571,6 +604,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         fill_holes: (args.fill_perimeter > 0.0).then_some(args.fill_perimeter),
         augment: args.augment.iter().map(|&p| vec![p]).collect(),
         augment_copies: args.augment_copies,
+        regularizer: args.regularizer_params(),
         ..ProtocolParams::default()
     };
     let n_labels = class.shapes[0].truth.len();

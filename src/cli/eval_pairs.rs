@@ -132,6 +132,8 @@ pub fn run(
         pairs,
         forest: RandomForest::params().n_trees(args.trees).seed(args.seed),
         cache_dir: (!args.no_cache).then(|| args.cache.clone()),
+        regularizer: args.regularizer_params(),
+        zoomout: args.zoomout_params(),
         ..PairsParams::default()
     };
     let pb = bar(args.quiet);

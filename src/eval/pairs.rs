@@ -16,7 +16,7 @@
 //! |---|---|
 //! | `Pair` | [`crate::regularizer::regularize_pair`]: `A`'s posterior read through `B`'s map onto the reference and regularised against `B` |
 //! | `Composed` | `A → reference` and `B → reference`, each regularised, composed by inverting the second ([`crate::regularizer::invert_map`]) |
-//! | `PairZoomOut` | `Pair` refined by ZoomOut started from its point map ([`crate::fmap::zoomout_from_map`]) |
+//! | `PairZoomOut` | `Pair` refined by ZoomOut started from its point map ([`crate::regularizer::refine_zoomout`]) |
 //!
 //! Each shape's map onto the reference is computed once, whatever the number of pairs it is in.
 //! Distances on `B` come from the heat method (`t = h²`), in blocks of sources, so memory stays
@@ -32,7 +32,10 @@ use crate::{
     eval::protocol::ProtocolShape,
     forest::{RandomForestParams, TrainingSet, TrainingShape},
     geodesic::{HeatMethodSolver, HeatParams},
-    regularizer::{regularize, regularize_onto, DenseMap, PairParams, PreparedShape, RegularizerParams},
+    regularizer::{
+        refine_zoomout, regularize, regularize_onto, DenseMap, PairParams, PreparedShape, RegularizerParams,
+        ZoomOutParams,
+    },
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
@@ -87,8 +90,8 @@ pub struct PairsParams {
     pub block: usize,
     /// Settings of the pair step.
     pub pair: PairParams,
-    /// ZoomOut of [`PairMethod::PairZoomOut`]: `(k_start, step)`, up to the spectrum's K.
-    pub zoomout: (usize, usize),
+    /// ZoomOut of [`PairMethod::PairZoomOut`] (see [`crate::regularizer::refine_zoomout`]).
+    pub zoomout: ZoomOutParams,
 }
 
 impl Default for PairsParams {
@@ -103,7 +106,7 @@ impl Default for PairsParams {
             cache_dir: None,
             block: 512,
             pair: PairParams::default(),
-            zoomout: (20, 5),
+            zoomout: ZoomOutParams::default(),
         }
     }
 }
@@ -317,23 +320,23 @@ pub fn run_pairs(
         let (pa, pred_a, a_to_ref) = &prepared[&a];
         let (pb, _, b_to_ref) = &prepared[&b];
         let t0 = Instant::now();
-        let (pair, composed) = regularize_onto(
+        let (mut pair, composed) = regularize_onto(
             pa,
             pb,
             &ref_prepared.mesh,
             pred_a,
-            &a_to_ref.map,
-            &b_to_ref.map,
+            a_to_ref.final_map(),
+            b_to_ref.final_map(),
             Some(table),
             &params.regularizer,
             &params.pair,
         )?;
         let pair_s = t0.elapsed().as_secs_f64();
         timings.pairs_s += pair_s;
-        let (z0, zstep) = params.zoomout;
-        let k = pa.spectrum.k().min(pb.spectrum.k());
-        let (_, zoomed) =
-            crate::fmap::zoomout_from_map(&pa.spectrum, &pb.spectrum, &pair.map, z0.min(k), k, zstep)?;
+        let zoomed = match pair.refined_map.take() {
+            Some(z) => z,
+            None => refine_zoomout(pa, pb, &pair.map, &params.zoomout)?,
+        };
         maps.push((pair.map, composed, zoomed, pair_s));
         emit(PairsEvent::PairDone {
             done: done + 1,

@@ -158,6 +158,8 @@ pub enum Method {
     ForestRaw,
     /// The regularised forest (the method of the paper).
     ForestRegularized,
+    /// The regularised forest refined by ZoomOut (when the regulariser's `zoomout` is set).
+    ForestZoomOut,
     /// The WKS k-NN baseline's most voted label.
     WksKnnRaw,
     /// The WKS k-NN posterior through the same regulariser.
@@ -166,8 +168,13 @@ pub enum Method {
 
 impl Method {
     /// All methods, in report order.
-    pub const ALL: [Method; 4] =
-        [Method::ForestRaw, Method::ForestRegularized, Method::WksKnnRaw, Method::WksKnnRegularized];
+    pub const ALL: [Method; 5] = [
+        Method::ForestRaw,
+        Method::ForestRegularized,
+        Method::ForestZoomOut,
+        Method::WksKnnRaw,
+        Method::WksKnnRegularized,
+    ];
 
     /// A short name for tables and CSV files.
     ///
@@ -179,6 +186,7 @@ impl Method {
         match self {
             Method::ForestRaw => "forest-raw",
             Method::ForestRegularized => "forest+reg",
+            Method::ForestZoomOut => "forest+reg+zo",
             Method::WksKnnRaw => "wks-knn-raw",
             Method::WksKnnRegularized => "wks-knn+reg",
         }
@@ -674,6 +682,9 @@ pub fn run_protocol(
             measure(Method::ForestRaw, &raw(&prediction))?,
             measure(Method::ForestRegularized, &on_scan(dense.map.clone()))?,
         ];
+        if let Some(refined) = &dense.refined_map {
+            methods.push(measure(Method::ForestZoomOut, &on_scan(refined.clone()))?);
+        }
         if let Some((knn_prediction, knn_dense)) = &baseline {
             methods.push(measure(Method::WksKnnRaw, &raw(knn_prediction))?);
             methods.push(measure(Method::WksKnnRegularized, &on_scan(knn_dense.map.clone()))?);

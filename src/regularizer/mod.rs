@@ -26,6 +26,7 @@ mod error;
 mod growth;
 mod orientation;
 mod pair;
+mod refine;
 mod scan;
 mod smoothing;
 
@@ -35,6 +36,7 @@ use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
 pub use pair::{invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams};
+pub use refine::{refine_zoomout, sample_cells};
 pub use scan::ScanPart;
 
 use faer::Mat;
@@ -107,13 +109,24 @@ pub fn normalising_area(scan: &Mesh, reference_area: f64) -> f64 {
     }
 }
 
-/// ZoomOut refinement settings.
+/// ZoomOut refinement settings (step 8, from the anchor-grown map; see [`refine_zoomout`]).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ZoomOutParams {
-    /// Final basis size.
+    /// First basis size: the grown map's functional map is fitted at this size. Default 20.
+    pub k_start: usize,
+    /// Final basis size (at most the spectra's K). Default 100.
     pub k_final: usize,
-    /// Basis functions added per iteration.
+    /// Basis functions added per iteration. Default 5.
     pub step: usize,
+    /// Farthest-point samples per shape the iterations run on (a shape with fewer vertices
+    /// uses all of them, which is ZoomOut exactly). Default 3000.
+    pub samples: usize,
+}
+
+impl Default for ZoomOutParams {
+    fn default() -> Self {
+        Self { k_start: 20, k_final: 100, step: 5, samples: 3000 }
+    }
 }
 
 /// Anchor growth: densifies the game's sparse matches into many geodesically consistent ones
@@ -315,6 +328,13 @@ pub struct DenseMap {
     pub mirror_rejected: bool,
     /// Time per stage.
     pub timings: RegularizerTimings,
+}
+
+impl DenseMap {
+    /// The map to use: the ZoomOut-refined one when refinement ran, else [`DenseMap::map`].
+    pub fn final_map(&self) -> &[usize] {
+        self.refined_map.as_deref().unwrap_or(&self.map)
+    }
 }
 
 /// A forest prediction read through a label → reference-vertex table.
@@ -610,16 +630,14 @@ pub fn dense_map(
         Some(g) => (g.map, g.anchors, Some(g.orientation), g.reoriented),
         None => (anchor_map.clone(), 0, None, false),
     };
-    let refined_map = match params.zoomout {
-        Some(z) if kt == kr => {
+    let refined_map = match &params.zoomout {
+        Some(z) => {
             let t0 = Instant::now();
-            let k_final = z.k_final.min(test.spectrum.k()).min(reference.spectrum.k());
-            let (_, refined) =
-                fmap::zoomout(&test.spectrum, &reference.spectrum, c.as_ref(), k_final, z.step)?;
+            let refined = refine_zoomout(test, reference, &map, z)?;
             timings.zoomout_s = t0.elapsed().as_secs_f64();
             Some(refined)
         }
-        _ => None,
+        None => None,
     };
 
     let forest_map = prediction.map_labels().into_iter().map(|l| l.map(|l| posterior.vertex(l))).collect();

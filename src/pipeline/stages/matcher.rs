@@ -73,7 +73,7 @@ pub fn regularizer_params(m: &MatcherConfig, f: &FmapConfig) -> RegularizerParam
     p.fmap.k_ref = f.basis;
     p.fmap.match_weight = f.match_weight;
     p.fmap.commutativity = f.commutativity;
-    p.zoomout = (f.zoomout_to > 0).then_some(ZoomOutParams { k_final: f.zoomout_to, step: 5 });
+    p.zoomout = (f.zoomout_to > 0).then_some(ZoomOutParams { k_final: f.zoomout_to, ..Default::default() });
     p.growth = (f.growth_samples > 0).then_some(AnchorGrowthParams {
         samples: f.growth_samples,
         keep: f.growth_keep,

@@ -1,0 +1,270 @@
+//! ZoomOut on samples of both shapes, with the final point map on every vertex.
+//!
+//! ZoomOut (Melzi et al. 2019) alternates a point map read from the functional map and a
+//! functional map one step larger fitted to that point map. Done on every vertex it costs a
+//! nearest-neighbour search of `n_M × n_R` rows per step; here the steps run on farthest-point
+//! samples of both shapes (the least-squares fit weighted by each test sample's share of the
+//! area), and only the final functional map is read back on every test vertex: among the
+//! reference samples first, then among the reference vertices of the winning sample's cell and
+//! its neighbouring cells ([`SampleCells`]). With every vertex a sample, this is ZoomOut exactly.
+
+use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par, Side};
+use rayon::prelude::*;
+
+use super::{basis, check_basis, nearest_rows, FmapError};
+use crate::spectral::Spectrum;
+
+/// Samples of a shape and the cells they split it into: every vertex belongs to the cell of its
+/// nearest sample (e.g. along the mesh's edges), and two cells are neighbours when a mesh edge
+/// joins them. Built by mesh-aware code (see `regularizer`); plain data here.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SampleCells {
+    /// The sample vertices.
+    pub samples: Vec<usize>,
+    /// Cell (index into `samples`) of every vertex.
+    pub cell_of: Vec<u32>,
+    /// Vertices of cell `c`: `members[member_offsets[c]..member_offsets[c + 1]]`.
+    pub member_offsets: Vec<usize>,
+    /// See `member_offsets`.
+    pub members: Vec<u32>,
+    /// Cells neighbouring cell `c` (itself included):
+    /// `neighbours[neighbour_offsets[c]..neighbour_offsets[c + 1]]`.
+    pub neighbour_offsets: Vec<usize>,
+    /// See `neighbour_offsets`.
+    pub neighbours: Vec<u32>,
+}
+
+impl SampleCells {
+    /// Cells from `samples`, the nearest sample of every vertex (`cell_of`, an index into
+    /// `samples`) and the shape's edges (pairs of vertices).
+    ///
+    /// ```
+    /// use shapeforest::fmap::SampleCells;
+    /// // A path 0 - 1 - 2 - 3 with samples 0 and 3: cells {0, 1} and {2, 3}, neighbours.
+    /// let cells = SampleCells::new(vec![0, 3], vec![0, 0, 1, 1], [(0, 1), (1, 2), (2, 3)]).unwrap();
+    /// assert_eq!(cells.members_of(1), &[2, 3]);
+    /// assert_eq!(cells.neighbours_of(0), &[0, 1]);
+    /// ```
+    pub fn new(
+        samples: Vec<usize>,
+        cell_of: Vec<u32>,
+        edges: impl IntoIterator<Item = (usize, usize)>,
+    ) -> Result<Self, FmapError> {
+        let ns = samples.len();
+        let n = cell_of.len();
+        if ns == 0 {
+            return Err(FmapError::InvalidParameter { name: "samples", reason: "no samples".into() });
+        }
+        if let Some(&c) = cell_of.iter().find(|&&c| c as usize >= ns) {
+            return Err(FmapError::SizeMismatch(format!("cell {c} named, there are {ns} samples")));
+        }
+        if let Some(&s) = samples.iter().find(|&&s| s >= n) {
+            return Err(FmapError::SizeMismatch(format!("sample vertex {s}, the shape has {n} vertices")));
+        }
+        let mut member_offsets = vec![0usize; ns + 1];
+        for &c in &cell_of {
+            member_offsets[c as usize + 1] += 1;
+        }
+        for c in 0..ns {
+            member_offsets[c + 1] += member_offsets[c];
+        }
+        let mut fill = member_offsets.clone();
+        let mut members = vec![0u32; n];
+        for (v, &c) in cell_of.iter().enumerate() {
+            members[fill[c as usize]] = v as u32;
+            fill[c as usize] += 1;
+        }
+        let mut pairs: Vec<(u32, u32)> = (0..ns as u32).map(|c| (c, c)).collect();
+        for (a, b) in edges {
+            if a >= n || b >= n {
+                return Err(FmapError::SizeMismatch(format!("edge ({a}, {b}) on a shape of {n} vertices")));
+            }
+            let (ca, cb) = (cell_of[a], cell_of[b]);
+            if ca != cb {
+                pairs.push((ca, cb));
+                pairs.push((cb, ca));
+            }
+        }
+        pairs.sort_unstable();
+        pairs.dedup();
+        let mut neighbour_offsets = vec![0usize; ns + 1];
+        for &(c, _) in &pairs {
+            neighbour_offsets[c as usize + 1] += 1;
+        }
+        for c in 0..ns {
+            neighbour_offsets[c + 1] += neighbour_offsets[c];
+        }
+        let neighbours = pairs.into_iter().map(|(_, d)| d).collect();
+        Ok(Self { samples, cell_of, member_offsets, members, neighbour_offsets, neighbours })
+    }
+
+    /// Number of vertices of the shape.
+    pub fn n_vertices(&self) -> usize {
+        self.cell_of.len()
+    }
+
+    /// The vertices of cell `c`.
+    pub fn members_of(&self, c: usize) -> &[u32] {
+        &self.members[self.member_offsets[c]..self.member_offsets[c + 1]]
+    }
+
+    /// The cells next to cell `c`, itself included.
+    pub fn neighbours_of(&self, c: usize) -> &[u32] {
+        &self.neighbours[self.neighbour_offsets[c]..self.neighbour_offsets[c + 1]]
+    }
+
+    /// The area (from the lumped `mass` of every vertex) of each cell.
+    pub fn cell_areas(&self, mass: &[f64]) -> Vec<f64> {
+        (0..self.samples.len()).map(|c| self.members_of(c).iter().map(|&v| mass[v as usize]).sum()).collect()
+    }
+}
+
+/// The ZoomOut schedule: from `k_start` basis functions to `k_final`, `step` at a time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ZoomOutSchedule {
+    /// First basis size (the map's functional map is fitted at this size).
+    pub k_start: usize,
+    /// Last basis size.
+    pub k_final: usize,
+    /// Basis functions added per step.
+    pub step: usize,
+}
+
+impl ZoomOutSchedule {
+    fn check(&self, test: &Spectrum, reference: &Spectrum) -> Result<(), FmapError> {
+        if self.step == 0 || self.k_start == 0 || self.k_start > self.k_final {
+            return Err(FmapError::InvalidParameter {
+                name: "zoomout",
+                reason: format!(
+                    "needs 1 ≤ k_start ≤ k_final and step ≥ 1, got {}, {}, {}",
+                    self.k_start, self.k_final, self.step
+                ),
+            });
+        }
+        check_basis("test", test, self.k_final)?;
+        check_basis("reference", reference, self.k_final)
+    }
+}
+
+/// ZoomOut of the point map `map` (test vertex → reference vertex) run on the samples of
+/// `test_cells` and `reference_cells`; returns the final `k_final × k_final` functional map
+/// (pulling back from the reference, as everywhere in this module). Read it back on every test
+/// vertex with [`point_to_point_in_cells`].
+pub fn zoomout_on_samples(
+    test: &Spectrum,
+    test_cells: &SampleCells,
+    reference: &Spectrum,
+    reference_cells: &SampleCells,
+    map: &[usize],
+    schedule: ZoomOutSchedule,
+) -> Result<Mat<f64>, FmapError> {
+    schedule.check(test, reference)?;
+    if map.len() != test.n_vertices || test_cells.n_vertices() != test.n_vertices {
+        return Err(FmapError::SizeMismatch(format!(
+            "a map of {} and cells of {} vertices for a test shape of {}",
+            map.len(),
+            test_cells.n_vertices(),
+            test.n_vertices
+        )));
+    }
+    if reference_cells.n_vertices() != reference.n_vertices {
+        return Err(FmapError::SizeMismatch(format!(
+            "cells of {} vertices for a reference of {}",
+            reference_cells.n_vertices(),
+            reference.n_vertices
+        )));
+    }
+    if let Some(&r) = map.iter().find(|&&r| r >= reference.n_vertices) {
+        return Err(FmapError::SizeMismatch(format!(
+            "the map names reference vertex {r}, the reference has {}",
+            reference.n_vertices
+        )));
+    }
+    let kf = schedule.k_final;
+    let rows = |s: &Spectrum, vs: &[usize]| {
+        let phi = basis(s, kf);
+        Mat::from_fn(vs.len(), kf, |i, j| phi[(vs[i], j)])
+    };
+    let phi_t = rows(test, &test_cells.samples);
+    let phi_r = rows(reference, &reference_cells.samples);
+    // Weighted Gram matrix of the test samples; its leading blocks serve every k.
+    let weights = test_cells.cell_areas(&test.mass);
+    let weighted = Mat::from_fn(phi_t.nrows(), kf, |i, j| weights[i] * phi_t[(i, j)]);
+    let mut gram = Mat::<f64>::zeros(kf, kf);
+    matmul(gram.as_mut(), Accum::Replace, weighted.transpose(), phi_t.as_ref(), 1.0, Par::rayon(0));
+    let fit = |targets: &[usize], k: usize, target_rows: &dyn Fn(usize, usize) -> f64| {
+        let target = Mat::from_fn(targets.len(), k, |i, j| target_rows(i, j));
+        let mut rhs = Mat::<f64>::zeros(k, k);
+        matmul(rhs.as_mut(), Accum::Replace, weighted.subcols(0, k).transpose(), target.as_ref(), 1.0, Par::Seq);
+        let llt = gram.subrows(0, k).subcols(0, k).to_owned().llt(Side::Lower).map_err(|_| {
+            FmapError::InvalidParameter {
+                name: "zoomout samples",
+                reason: format!("{} test samples are too few for {k} basis functions", targets.len()),
+            }
+        })?;
+        Ok::<_, FmapError>(faer::linalg::solvers::Solve::solve(&llt, rhs.as_ref()))
+    };
+    // The map's own functional map at k_start, from every sample's image under `map`.
+    let first: Vec<usize> = test_cells.samples.iter().map(|&s| map[s]).collect();
+    let phi_ref = basis(reference, kf);
+    let mut k = schedule.k_start;
+    let mut c = fit(&first, k, &|i, j| phi_ref[(first[i], j)])?;
+    loop {
+        // Test samples onto reference samples: rows of Φ_t against rows of Φ_r Cᵀ.
+        let mut points = Mat::<f64>::zeros(phi_r.nrows(), k);
+        matmul(points.as_mut(), Accum::Replace, phi_r.subcols(0, k), c.transpose(), 1.0, Par::rayon(0));
+        let t = nearest_rows(phi_t.subcols(0, k), points.as_ref());
+        let last = k == kf;
+        k = (k + schedule.step).min(kf);
+        c = fit(&t, k, &|i, j| phi_r[(t[i], j)])?;
+        if last {
+            return Ok(c);
+        }
+    }
+}
+
+/// The point map `T: M → R` of `c` (`k × k`) on every test vertex, read as ZoomOut reads it (the
+/// row of `Φ_M` against the rows of `Φ_R Cᵀ`, see [`super::point_to_point_orthogonal`]), searched
+/// among the reference samples first and then among the vertices of the nearest sample's cell
+/// and its neighbouring cells.
+pub fn point_to_point_in_cells(
+    test: &Spectrum,
+    reference: &Spectrum,
+    reference_cells: &SampleCells,
+    c: MatRef<'_, f64>,
+) -> Result<Vec<usize>, FmapError> {
+    let k = c.nrows();
+    if c.ncols() != k {
+        return Err(FmapError::SizeMismatch("the functional map must be square".into()));
+    }
+    check_basis("test", test, k)?;
+    check_basis("reference", reference, k)?;
+    if reference_cells.n_vertices() != reference.n_vertices {
+        return Err(FmapError::SizeMismatch(format!(
+            "cells of {} vertices for a reference of {}",
+            reference_cells.n_vertices(),
+            reference.n_vertices
+        )));
+    }
+    let mut points = Mat::<f64>::zeros(reference.n_vertices, k);
+    matmul(points.as_mut(), Accum::Replace, basis(reference, k), c.transpose(), 1.0, Par::rayon(0));
+    let queries = basis(test, k);
+    let sample_points =
+        Mat::from_fn(reference_cells.samples.len(), k, |i, j| points[(reference_cells.samples[i], j)]);
+    let coarse = nearest_rows(queries, sample_points.as_ref());
+    let mut out = vec![0usize; test.n_vertices];
+    out.par_iter_mut().enumerate().for_each(|(m, slot)| {
+        let mut best = f64::INFINITY;
+        for &cell in reference_cells.neighbours_of(coarse[m]) {
+            for &r in reference_cells.members_of(cell as usize) {
+                let r = r as usize;
+                let d: f64 = (0..k).map(|j| (queries[(m, j)] - points[(r, j)]).powi(2)).sum();
+                if d < best {
+                    best = d;
+                    *slot = r;
+                }
+            }
+        }
+    });
+    Ok(out)
+}
