@@ -161,6 +161,14 @@ pub struct EvalArgs {
     /// Farthest-point samples per shape that ZoomOut's iterations run on.
     #[arg(long, default_value_t = 3000, value_name = "N")]
     pub zoomout_samples: usize,
+    /// Keep ZoomOut's images within this distance (× √area of the reference) of the
+    /// regularised map's.
+    #[arg(long, value_name = "R")]
+    pub zoomout_radius: Option<f64>,
+    /// Farthest-point samples on which a ZoomOut result must be closer to an isometry than the
+    /// map it started from to be kept (0: always keep it).
+    #[arg(long, default_value_t = 100, value_name = "N")]
+    pub zoomout_check: usize,
 }
 
 impl EvalArgs {
@@ -170,6 +178,8 @@ impl EvalArgs {
             k_start: self.zoomout_start,
             step: self.zoomout_step,
             samples: self.zoomout_samples,
+            radius: self.zoomout_radius,
+            check_samples: self.zoomout_check,
             ..Default::default()
         }
     }

@@ -57,6 +57,10 @@ pub struct MatchArgs {
     /// Spectrum cache folder (none by default).
     #[arg(long)]
     pub cache: Option<PathBuf>,
+    /// Refine the regularised map by ZoomOut (kept only where it brings the map closer to an
+    /// isometry; see README, "ZoomOut refinement").
+    #[arg(long)]
+    pub zoomout: bool,
 }
 
 fn stem(p: &Path) -> String {
@@ -170,7 +174,10 @@ pub fn run(args: MatchArgs) -> Result<()> {
         }
         None => None,
     };
-    let reg = RegularizerParams::default();
+    let reg = RegularizerParams {
+        zoomout: args.zoomout.then(shapeforest::regularizer::ZoomOutParams::default),
+        ..Default::default()
+    };
     let k = forest.k().max(reg.fmap.k_test).max(reg.fmap.k_ref);
     let sp_params = SpectrumParams::new(k);
     // A scan in pieces is matched on its largest component, an open partial scan normalised by
@@ -306,6 +313,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
             "regularize_fmap": tm.fmap_s,
             "regularize_point_map": tm.point_map_s,
             "regularize_growth": tm.growth_s,
+            "regularize_zoomout": tm.zoomout_s,
             "write": write_s,
             "total": t_all.elapsed().as_secs_f64(),
         },

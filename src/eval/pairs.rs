@@ -325,17 +325,19 @@ pub fn run_pairs(
             pb,
             &ref_prepared.mesh,
             pred_a,
-            a_to_ref.final_map(),
-            b_to_ref.final_map(),
+            &a_to_ref.map,
+            &b_to_ref.map,
             Some(table),
             &params.regularizer,
             &params.pair,
         )?;
         let pair_s = t0.elapsed().as_secs_f64();
         timings.pairs_s += pair_s;
-        let zoomed = match pair.refined_map.take() {
-            Some(z) => z,
-            None => refine_zoomout(pa, pb, &pair.map, &params.zoomout)?,
+        // With the regulariser's ZoomOut on, the pair map is already refined (or was kept).
+        let zoomed = match (pair.grown_map.take(), &params.regularizer.zoomout) {
+            (Some(grown), _) => std::mem::replace(&mut pair.map, grown),
+            (None, Some(_)) => pair.map.clone(),
+            (None, None) => refine_zoomout(pa, pb, &pair.map, &params.zoomout)?.unwrap_or_else(|| pair.map.clone()),
         };
         maps.push((pair.map, composed, zoomed, pair_s));
         emit(PairsEvent::PairDone {

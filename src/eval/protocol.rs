@@ -158,7 +158,8 @@ pub enum Method {
     ForestRaw,
     /// The regularised forest (the method of the paper).
     ForestRegularized,
-    /// The regularised forest refined by ZoomOut (when the regulariser's `zoomout` is set).
+    /// The regularised forest refined by ZoomOut (when the regulariser's `zoomout` is set; the
+    /// grown map where the refinement was not kept).
     ForestZoomOut,
     /// The WKS k-NN baseline's most voted label.
     WksKnnRaw,
@@ -680,10 +681,10 @@ pub fn run_protocol(
         let raw = |p: &Prediction| on_scan(raw_map(p, table));
         let mut methods = vec![
             measure(Method::ForestRaw, &raw(&prediction))?,
-            measure(Method::ForestRegularized, &on_scan(dense.map.clone()))?,
+            measure(Method::ForestRegularized, &on_scan(dense.unrefined_map().to_vec()))?,
         ];
-        if let Some(refined) = &dense.refined_map {
-            methods.push(measure(Method::ForestZoomOut, &on_scan(refined.clone()))?);
+        if params.regularizer.zoomout.is_some() {
+            methods.push(measure(Method::ForestZoomOut, &on_scan(dense.map.clone()))?);
         }
         if let Some((knn_prediction, knn_dense)) = &baseline {
             methods.push(measure(Method::WksKnnRaw, &raw(knn_prediction))?);

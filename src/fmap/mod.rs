@@ -25,7 +25,7 @@ use thiserror::Error;
 use crate::spectral::Spectrum;
 
 mod sampled;
-pub use sampled::{point_to_point_in_cells, zoomout_on_samples, SampleCells, ZoomOutSchedule};
+pub use sampled::{point_to_point_in_cells, zoomout_on_samples, CellBalls, SampleCells, ZoomOutSchedule};
 
 /// A functional-map computation failed.
 #[derive(Debug, Error)]

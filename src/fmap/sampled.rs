@@ -119,6 +119,35 @@ impl SampleCells {
     }
 }
 
+/// For every cell of a [`SampleCells`], the cells within some radius of it (itself included), as
+/// compressed rows. ZoomOut restricted by them moves a vertex's image only within the ball around
+/// where the starting map put it, so that the refinement sharpens the map without drifting to a
+/// mirror image or another limb.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CellBalls {
+    /// Cells of ball `c`: `cells[offsets[c]..offsets[c + 1]]`.
+    pub offsets: Vec<usize>,
+    /// See `offsets`.
+    pub cells: Vec<u32>,
+}
+
+impl CellBalls {
+    /// The cells of the ball around cell `c`.
+    pub fn of(&self, c: usize) -> &[u32] {
+        &self.cells[self.offsets[c]..self.offsets[c + 1]]
+    }
+
+    /// Number of balls (the cells they are centred on).
+    pub fn len(&self) -> usize {
+        self.offsets.len().saturating_sub(1)
+    }
+
+    /// Whether there are no balls.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
 /// The ZoomOut schedule: from `k_start` basis functions to `k_final`, `step` at a time.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ZoomOutSchedule {
@@ -149,12 +178,14 @@ impl ZoomOutSchedule {
 /// ZoomOut of the point map `map` (test vertex → reference vertex) run on the samples of
 /// `test_cells` and `reference_cells`; returns the final `k_final × k_final` functional map
 /// (pulling back from the reference, as everywhere in this module). Read it back on every test
-/// vertex with [`point_to_point_in_cells`].
+/// vertex with [`point_to_point_in_cells`]. With `balls`, a test sample's image is searched only
+/// among the reference samples of the ball around the cell of its image under `map`.
 pub fn zoomout_on_samples(
     test: &Spectrum,
     test_cells: &SampleCells,
     reference: &Spectrum,
     reference_cells: &SampleCells,
+    balls: Option<&CellBalls>,
     map: &[usize],
     schedule: ZoomOutSchedule,
 ) -> Result<Mat<f64>, FmapError> {
@@ -174,12 +205,7 @@ pub fn zoomout_on_samples(
             reference.n_vertices
         )));
     }
-    if let Some(&r) = map.iter().find(|&&r| r >= reference.n_vertices) {
-        return Err(FmapError::SizeMismatch(format!(
-            "the map names reference vertex {r}, the reference has {}",
-            reference.n_vertices
-        )));
-    }
+    check_map(map, reference, balls, reference_cells)?;
     let kf = schedule.k_final;
     let rows = |s: &Spectrum, vs: &[usize]| {
         let phi = basis(s, kf);
@@ -213,7 +239,12 @@ pub fn zoomout_on_samples(
         // Test samples onto reference samples: rows of Φ_t against rows of Φ_r Cᵀ.
         let mut points = Mat::<f64>::zeros(phi_r.nrows(), k);
         matmul(points.as_mut(), Accum::Replace, phi_r.subcols(0, k), c.transpose(), 1.0, Par::rayon(0));
-        let t = nearest_rows(phi_t.subcols(0, k), points.as_ref());
+        let t = match balls {
+            None => nearest_rows(phi_t.subcols(0, k), points.as_ref()),
+            Some(b) => nearest_among(phi_t.subcols(0, k), points.as_ref(), |i| {
+                b.of(reference_cells.cell_of[first[i]] as usize)
+            }),
+        };
         let last = k == kf;
         k = (k + schedule.step).min(kf);
         c = fit(&t, k, &|i, j| phi_r[(t[i], j)])?;
@@ -226,11 +257,13 @@ pub fn zoomout_on_samples(
 /// The point map `T: M → R` of `c` (`k × k`) on every test vertex, read as ZoomOut reads it (the
 /// row of `Φ_M` against the rows of `Φ_R Cᵀ`, see [`super::point_to_point_orthogonal`]), searched
 /// among the reference samples first and then among the vertices of the nearest sample's cell
-/// and its neighbouring cells.
+/// and its neighbouring cells. With `balls` and the starting `map`, the samples searched first
+/// are those of the ball around the cell of the vertex's image under `map`.
 pub fn point_to_point_in_cells(
     test: &Spectrum,
     reference: &Spectrum,
     reference_cells: &SampleCells,
+    restrict: Option<(&CellBalls, &[usize])>,
     c: MatRef<'_, f64>,
 ) -> Result<Vec<usize>, FmapError> {
     let k = c.nrows();
@@ -251,7 +284,20 @@ pub fn point_to_point_in_cells(
     let queries = basis(test, k);
     let sample_points =
         Mat::from_fn(reference_cells.samples.len(), k, |i, j| points[(reference_cells.samples[i], j)]);
-    let coarse = nearest_rows(queries, sample_points.as_ref());
+    let coarse = match restrict {
+        None => nearest_rows(queries, sample_points.as_ref()),
+        Some((balls, map)) => {
+            if map.len() != test.n_vertices {
+                return Err(FmapError::SizeMismatch(format!(
+                    "a map of {} vertices for a test shape of {}",
+                    map.len(),
+                    test.n_vertices
+                )));
+            }
+            check_map(map, reference, Some(balls), reference_cells)?;
+            nearest_among(queries, sample_points.as_ref(), |m| balls.of(reference_cells.cell_of[map[m]] as usize))
+        }
+    };
     let mut out = vec![0usize; test.n_vertices];
     out.par_iter_mut().enumerate().for_each(|(m, slot)| {
         let mut best = f64::INFINITY;
@@ -267,4 +313,50 @@ pub fn point_to_point_in_cells(
         }
     });
     Ok(out)
+}
+
+/// Checks that `map` names reference vertices and that `balls` has one ball per cell.
+fn check_map(
+    map: &[usize],
+    reference: &Spectrum,
+    balls: Option<&CellBalls>,
+    reference_cells: &SampleCells,
+) -> Result<(), FmapError> {
+    if let Some(&r) = map.iter().find(|&&r| r >= reference.n_vertices) {
+        return Err(FmapError::SizeMismatch(format!(
+            "the map names reference vertex {r}, the reference has {}",
+            reference.n_vertices
+        )));
+    }
+    match balls {
+        Some(b) if b.len() != reference_cells.samples.len() => Err(FmapError::SizeMismatch(format!(
+            "{} balls for {} reference cells",
+            b.len(),
+            reference_cells.samples.len()
+        ))),
+        _ => Ok(()),
+    }
+}
+
+/// For each row `i` of `queries`, the row of `points` nearest to it among `candidates(i)`
+/// (the first candidate when all are equally far; row 0 when there are none).
+fn nearest_among<'a>(
+    queries: MatRef<'_, f64>,
+    points: MatRef<'_, f64>,
+    candidates: impl Fn(usize) -> &'a [u32] + Sync,
+) -> Vec<usize> {
+    let k = queries.ncols();
+    let mut out = vec![0usize; queries.nrows()];
+    out.par_iter_mut().enumerate().for_each(|(i, slot)| {
+        let mut best = f64::INFINITY;
+        for &p in candidates(i) {
+            let p = p as usize;
+            let d: f64 = (0..k).map(|j| (queries[(i, j)] - points[(p, j)]).powi(2)).sum();
+            if d < best {
+                best = d;
+                *slot = p;
+            }
+        }
+    });
+    out
 }

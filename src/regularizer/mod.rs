@@ -15,7 +15,8 @@
 //!    mapped through the current map, the pairs that agree with the others are kept as
 //!    anchors, and every vertex is placed again with locality-weighted distances to them,
 //!    a few rounds (see [`AnchorGrowthParams`]);
-//! 8. an optional ZoomOut refinement, off by default and reported separately.
+//! 8. an optional ZoomOut refinement of the grown map (off by default), kept only when it brings
+//!    the map closer to an isometry.
 //!
 //! Shapes are prepared once ([`PreparedShape`]: mesh, spectrum, heat-method factorisation), so a
 //! reference serves many test shapes.
@@ -36,7 +37,7 @@ use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
 pub use pair::{invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams};
-pub use refine::{refine_zoomout, sample_cells};
+pub use refine::{cell_balls, map_distortion, refine_zoomout, sample_cells};
 pub use scan::ScanPart;
 
 use faer::Mat;
@@ -121,11 +122,20 @@ pub struct ZoomOutParams {
     /// Farthest-point samples per shape the iterations run on (a shape with fewer vertices
     /// uses all of them, which is ZoomOut exactly). Default 3000.
     pub samples: usize,
+    /// Keep every vertex's image within this distance (in units of the reference's `√area`,
+    /// along the reference) of where the anchor-grown map put it; `None`: unrestricted ZoomOut.
+    #[serde(default)]
+    pub radius: Option<f64>,
+    /// Keep the refined map only if it is closer to an isometry than the map it started from,
+    /// measured on this many farthest-point samples of the test shape (see
+    /// [`map_distortion`]); 0: always keep it. Default 100.
+    #[serde(default)]
+    pub check_samples: usize,
 }
 
 impl Default for ZoomOutParams {
     fn default() -> Self {
-        Self { k_start: 20, k_final: 100, step: 5, samples: 3000 }
+        Self { k_start: 20, k_final: 100, step: 5, samples: 3000, radius: None, check_samples: 100 }
     }
 }
 
@@ -309,8 +319,10 @@ pub struct DenseMap {
     /// (unrestricted nearest neighbour in the spectral embedding; with
     /// [`RegularizerParams::spectral_maps`]).
     pub fmap_map: Option<Vec<usize>>,
-    /// The ZoomOut-refined map, when refinement was asked for.
-    pub refined_map: Option<Vec<usize>>,
+    /// The anchor-grown map before the ZoomOut refinement replaced it in [`DenseMap::map`]
+    /// (`None` when refinement was off or did not bring the map closer to an isometry: `map` is
+    /// then the grown map itself).
+    pub grown_map: Option<Vec<usize>>,
     /// The forest's own maximum-a-posteriori map (test vertex → reference vertex), for
     /// comparison; `None` where the forest gave no label.
     pub forest_map: Vec<Option<usize>>,
@@ -331,9 +343,9 @@ pub struct DenseMap {
 }
 
 impl DenseMap {
-    /// The map to use: the ZoomOut-refined one when refinement ran, else [`DenseMap::map`].
-    pub fn final_map(&self) -> &[usize] {
-        self.refined_map.as_deref().unwrap_or(&self.map)
+    /// The anchor-grown map, before any ZoomOut refinement (the method of the paper).
+    pub fn unrefined_map(&self) -> &[usize] {
+        self.grown_map.as_deref().unwrap_or(&self.map)
     }
 }
 
@@ -630,14 +642,17 @@ pub fn dense_map(
         Some(g) => (g.map, g.anchors, Some(g.orientation), g.reoriented),
         None => (anchor_map.clone(), 0, None, false),
     };
-    let refined_map = match &params.zoomout {
+    let (map, grown_map) = match &params.zoomout {
         Some(z) => {
             let t0 = Instant::now();
             let refined = refine_zoomout(test, reference, &map, z)?;
             timings.zoomout_s = t0.elapsed().as_secs_f64();
-            Some(refined)
+            match refined {
+                Some(r) => (r, Some(map)),
+                None => (map, None),
+            }
         }
-        None => None,
+        None => (map, None),
     };
 
     let forest_map = prediction.map_labels().into_iter().map(|l| l.map(|l| posterior.vertex(l))).collect();
@@ -649,7 +664,7 @@ pub fn dense_map(
         reoriented,
         spectral_map,
         fmap_map,
-        refined_map,
+        grown_map,
         forest_map,
         fmap_predicted,
         fmap: c,

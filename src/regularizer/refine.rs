@@ -2,9 +2,11 @@
 //! anchor-grown map, on farthest-point samples of both shapes for large meshes (see
 //! [`crate::fmap::zoomout_on_samples`]).
 
+use std::{cmp::Reverse, collections::BinaryHeap};
+
 use super::{PreparedShape, RegularizerError as Error, ZoomOutParams};
 use crate::{
-    fmap::{point_to_point_in_cells, zoomout_on_samples, SampleCells, ZoomOutSchedule},
+    fmap::{point_to_point_in_cells, zoomout_on_samples, CellBalls, SampleCells, ZoomOutSchedule},
     geodesic::{dijkstra_nearest_source, farthest_point_sampling_euclidean},
     mesh::Mesh,
 };
@@ -37,17 +39,125 @@ pub fn sample_cells(mesh: &Mesh, n: usize) -> Result<SampleCells, Error> {
     Ok(SampleCells::new(samples, cell_of, edges())?)
 }
 
-/// ZoomOut of `map` (test vertex → reference vertex) by `params`, read back on every test vertex.
+/// For every cell of `cells` (samples of `mesh`), the cells whose samples are within `radius`
+/// of its sample along the cell graph (edges between neighbouring cells, as long as the
+/// straight segment between their samples): a cheap stand-in for the geodesic ball that does not
+/// jump across a gap between limbs.
+pub fn cell_balls(mesh: &Mesh, cells: &SampleCells, radius: f64) -> CellBalls {
+    let ns = cells.samples.len();
+    let pos = |c: usize| mesh.vertices[cells.samples[c]];
+    let dist = |a: [f64; 3], b: [f64; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    let mut offsets = Vec::with_capacity(ns + 1);
+    offsets.push(0);
+    let mut out = Vec::new();
+    let mut best = vec![f64::INFINITY; ns];
+    let mut touched = Vec::new();
+    let mut heap = BinaryHeap::new();
+    for c in 0..ns {
+        best[c] = 0.0;
+        touched.push(c);
+        heap.push((Reverse(OrdF64(0.0)), c));
+        while let Some((Reverse(OrdF64(d)), u)) = heap.pop() {
+            if d > best[u] {
+                continue;
+            }
+            out.push(u as u32);
+            for &w in cells.neighbours_of(u) {
+                let w = w as usize;
+                let nd = d + dist(pos(u), pos(w));
+                if nd <= radius && nd < best[w] {
+                    if best[w].is_infinite() {
+                        touched.push(w);
+                    }
+                    best[w] = nd;
+                    heap.push((Reverse(OrdF64(nd)), w));
+                }
+            }
+        }
+        for &t in &touched {
+            best[t] = f64::INFINITY;
+        }
+        touched.clear();
+        offsets.push(out.len());
+    }
+    CellBalls { offsets, cells: out }
+}
+
+/// A total order on the (finite) distances of [`cell_balls`]'s queue.
+#[derive(Clone, Copy, PartialEq)]
+struct OrdF64(f64);
+
+impl Eq for OrdF64 {}
+
+impl PartialOrd for OrdF64 {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for OrdF64 {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&other.0)
+    }
+}
+
+/// How far `map` is from an isometry on `samples` of the test shape: the mean, over pairs of
+/// samples, of `|d_M(s_i, s_j) − d_R(map(s_i), map(s_j))|`, geodesic distances (heat method) in
+/// units of each shape's `√area`. `test_fields` are the test shape's distances from the samples
+/// (one column each), shared between the maps compared.
+pub fn map_distortion(
+    reference: &PreparedShape,
+    test_fields: &faer::Mat<f64>,
+    samples: &[usize],
+    test_sqrt_area: f64,
+    map: &[usize],
+) -> Result<f64, Error> {
+    let targets: Vec<usize> = samples.iter().map(|&s| map[s]).collect();
+    let ref_fields = reference.heat.distances_from_many(&targets)?;
+    let (st, sr) = (1.0 / test_sqrt_area.max(f64::MIN_POSITIVE), 1.0 / reference.sqrt_area().max(f64::MIN_POSITIVE));
+    let n = samples.len();
+    let mut total = 0.0;
+    for i in 0..n {
+        for j in (i + 1)..n {
+            total += (test_fields[(samples[i], j)] * st - ref_fields[(targets[i], j)] * sr).abs();
+        }
+    }
+    Ok(if n > 1 { total / (n * (n - 1) / 2) as f64 } else { 0.0 })
+}
+
+/// ZoomOut of `map` (test vertex → reference vertex) by `params`, read back on every test vertex;
+/// `None` when the check of `params.check_samples` found it farther from an isometry than `map`.
 pub fn refine_zoomout(
     test: &PreparedShape,
     reference: &PreparedShape,
     map: &[usize],
     params: &ZoomOutParams,
-) -> Result<Vec<usize>, Error> {
+) -> Result<Option<Vec<usize>>, Error> {
     let k_final = params.k_final.min(test.spectrum.k()).min(reference.spectrum.k());
     let schedule = ZoomOutSchedule { k_start: params.k_start.min(k_final), k_final, step: params.step };
     let test_cells = sample_cells(&test.mesh, params.samples)?;
     let reference_cells = sample_cells(&reference.mesh, params.samples)?;
-    let c = zoomout_on_samples(&test.spectrum, &test_cells, &reference.spectrum, &reference_cells, map, schedule)?;
-    Ok(point_to_point_in_cells(&test.spectrum, &reference.spectrum, &reference_cells, c.as_ref())?)
+    let balls = params
+        .radius
+        .map(|r| cell_balls(&reference.mesh, &reference_cells, r * reference.mesh.surface_area().sqrt()));
+    let c = zoomout_on_samples(
+        &test.spectrum,
+        &test_cells,
+        &reference.spectrum,
+        &reference_cells,
+        balls.as_ref(),
+        map,
+        schedule,
+    )?;
+    let restrict = balls.as_ref().map(|b| (b, map));
+    let refined = point_to_point_in_cells(&test.spectrum, &reference.spectrum, &reference_cells, restrict, c.as_ref())?;
+    if params.check_samples == 0 {
+        return Ok(Some(refined));
+    }
+    // Keep the refinement only if it brings the map closer to an isometry.
+    let samples = farthest_point_sampling_euclidean(&test.mesh, params.check_samples.min(test.mesh.n_vertices()), None)?;
+    let fields = test.heat.distances_from_many(&samples)?;
+    let before = map_distortion(reference, &fields, &samples, test.sqrt_area(), map)?;
+    let after = map_distortion(reference, &fields, &samples, test.sqrt_area(), &refined)?;
+    Ok((after <= before).then_some(refined))
 }
