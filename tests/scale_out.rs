@@ -222,15 +222,17 @@ fn a_killed_workers_job_is_redelivered_and_finished_once() {
     let Some(Cluster { dir, server: _server, url, data, p }) = Cluster::start("") else { return };
     let out = dir.path().join("out");
     let nats = client(&url);
-    // No model yet: the first worker takes the job and holds it (waiting for a model).
+    // No model yet: the first worker reads the scan, computes its spectrum and holds the job
+    // in its descriptor stage (waiting for a model).
     let mut a = worker(dir.path(), &p, &url, "a", None);
     let mut r = results(dir.path(), &p, &url, &out);
     submit_files(&p, &url, &scans(&dir.path().join("in"), 8, 1));
     wait_for("worker a to hold the job", &mut [&mut a, &mut r], || {
-        backlog(&nats, "scans", "read-scans").1 == 1
+        backlog(&nats, "scan-spectra", "descriptor").1 == 1
     });
     thread::sleep(Duration::from_secs(3)); // beyond the ack wait: progress acks keep it with a
-    assert_eq!(backlog(&nats, "scans", "read-scans"), (0, 1), "held by a, not redelivered");
+    assert_eq!(backlog(&nats, "scan-spectra", "descriptor"), (0, 1), "held by a, not redelivered");
+    assert_eq!(backlog(&nats, "scans", "read-scans"), (0, 0), "the earlier edges are done with");
     a.kill();
     publish_model(&p, &url, &data);
     let mut b = worker(dir.path(), &p, &url, "b", None);
@@ -238,8 +240,148 @@ fn a_killed_workers_job_is_redelivered_and_finished_once() {
     thread::sleep(Duration::from_secs(3));
     assert_eq!(result_dirs(&out), vec!["scan-creature8".to_string()]);
     assert_eq!(ledger(&out), 1);
-    assert_eq!(backlog(&nats, "scans", "read-scans"), (0, 0));
-    assert_eq!(jobs_of(&b.stop(), "read-scans"), 1);
+    assert_eq!(backlog(&nats, "scan-spectra", "descriptor"), (0, 0));
+    let b_log = b.stop();
+    assert_eq!(jobs_of(&b_log, "read-scans"), 0, "read once, by a");
+    assert_eq!(jobs_of(&b_log, "descriptor"), 1, "the held job, redelivered to b");
+    r.stop();
+}
+
+/// The watch pipeline's scan chain, edge by edge.
+const SCAN_EDGES: [(&str, &str); 7] = [
+    ("scans", "read-scans"),
+    ("read-scans", "scan-spectra"),
+    ("scan-spectra", "descriptor"),
+    ("descriptor", "forest"),
+    ("forest", "matcher"),
+    ("matcher", "fmap"),
+    ("fmap", "results"),
+];
+
+#[test]
+fn stages_split_over_two_workers_give_the_daemons_maps() {
+    let Some(Cluster { dir, server: _server, url, data, p }) = Cluster::start("") else { return };
+    publish_model(&p, &url, &data);
+    let inputs: Vec<PathBuf> =
+        (6..8).map(|i| data.join(format!("matched/scan-creature{i}/scan-creature{i}.off"))).collect();
+    let out = dir.path().join("out");
+    // One worker reads scans and computes spectra, the other does the rest: every edge between
+    // them travels (spectra, and the model as its version).
+    let mut a = worker(dir.path(), &p, &url, "a", Some("read-scans,scan-spectra"));
+    let mut b = worker(dir.path(), &p, &url, "b", Some("descriptor,forest,matcher,fmap"));
+    let mut r = results(dir.path(), &p, &url, &out);
+    submit_files(&p, &url, &inputs);
+    wait_for("2 results", &mut [&mut a, &mut b, &mut r], || result_dirs(&out).len() >= 2);
+    thread::sleep(Duration::from_secs(2));
+    assert_eq!(result_dirs(&out), vec!["scan-creature6".to_string(), "scan-creature7".to_string()]);
+    for n in ["scan-creature6", "scan-creature7"] {
+        let daemon = std::fs::read_to_string(data.join(format!("matched/{n}/{n}.map.txt"))).unwrap();
+        let workers = std::fs::read_to_string(out.join(format!("matched/{n}/{n}.map.txt"))).unwrap();
+        assert!(daemon == workers, "{n}: the split workers' map differs from the in-process daemon's");
+    }
+    let nats = client(&url);
+    for (from, to) in SCAN_EDGES {
+        assert_eq!(backlog(&nats, from, to), (0, 0), "{from} → {to}");
+    }
+    let (a_log, b_log) = (a.stop(), b.stop());
+    assert_eq!(jobs_of(&a_log, "scan-spectra"), 2, "{a_log}");
+    assert_eq!(jobs_of(&b_log, "fmap"), 2, "{b_log}");
+    assert!(!b_log.lines().any(|l| l.starts_with("scan-spectra")), "b ran no spectra:\n{b_log}");
+    r.stop();
+}
+
+fn dead_letters(nats: &Nats) -> Vec<String> {
+    nats.block_on(async {
+        let mut s = nats.jetstream().get_stream("shapeforest_DEAD").await.unwrap();
+        let n = s.info().await.unwrap().state.last_sequence;
+        let mut errors = Vec::new();
+        for seq in 1..=n {
+            if let Ok(m) = s.get_raw_message(seq).await {
+                errors.push(
+                    m.headers.get("Shapeforest-Error").map(|v| v.as_str().to_string()).unwrap_or_default(),
+                );
+            }
+        }
+        errors
+    })
+}
+
+#[test]
+fn a_result_that_cannot_be_written_is_retried_then_dead_lettered_never_acknowledged() {
+    let Some(Cluster { dir, server: _server, url, data, p }) = Cluster::start("nats_max_deliver = 3") else {
+        return;
+    };
+    publish_model(&p, &url, &data);
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    // `matched` is a file: no result folder can be made (as on a full or read-only disk).
+    std::fs::write(out.join("matched"), "not a folder").unwrap();
+    let mut w = worker(dir.path(), &p, &url, "w", None);
+    let mut r = results(dir.path(), &p, &url, &out);
+    submit_files(&p, &url, &scans(&dir.path().join("in"), 8, 1));
+    wait_for_log(&mut r, "a failed write handed back", |l| l.contains("delivered again in"));
+    // The disk is fixed: the next delivery writes the result, once.
+    std::fs::remove_file(out.join("matched")).unwrap();
+    wait_for("the result", &mut [&mut w, &mut r], || result_dirs(&out).len() == 1);
+    thread::sleep(Duration::from_secs(2));
+    assert_eq!(result_dirs(&out), vec!["scan-creature8".to_string()]);
+    assert_eq!(ledger(&out), 1);
+    let nats = client(&url);
+    assert_eq!(backlog(&nats, "fmap", "results"), (0, 0));
+    assert!(dead_letters(&nats).is_empty());
+    // It stays broken: three deliveries, then the dead letters, with the error.
+    std::fs::remove_dir_all(out.join("matched")).unwrap();
+    std::fs::write(out.join("matched"), "not a folder").unwrap();
+    submit_files(&p, &url, &scans(&dir.path().join("in2"), 9, 1));
+    wait_for("the dead letter", &mut [&mut w, &mut r], || dead_letters(&nats).len() == 1);
+    let why = &dead_letters(&nats)[0];
+    assert!(why.contains("cannot write the result") && why.contains("3 deliveries"), "{why}");
+    thread::sleep(Duration::from_secs(1));
+    assert_eq!(backlog(&nats, "fmap", "results"), (0, 0), "not waiting, not held");
+    assert_eq!(ledger(&out), 1, "the failed job is not recorded as done");
+    w.stop();
+    r.stop();
+}
+
+#[test]
+fn a_result_written_before_its_acknowledgement_was_lost_is_not_written_again() {
+    let Some(Cluster { dir, server: _server, url, data, p }) = Cluster::start("") else { return };
+    publish_model(&p, &url, &data);
+    let out = dir.path().join("out");
+    let nats = client(&url);
+    let mut w = worker(dir.path(), &p, &url, "w", None);
+    submit_files(&p, &url, &scans(&dir.path().join("in"), 8, 1));
+    wait_for("the map waiting for a sink", &mut [&mut w], || backlog(&nats, "fmap", "results").0 == 1);
+    // A copy of the map message, as the server would deliver it again.
+    let edge = nats.edge("fmap", "results");
+    let raw = nats.block_on(async {
+        let s = nats.jetstream().get_stream(&edge.stream).await.unwrap();
+        s.get_last_raw_message_by_subject(&edge.subject).await.unwrap()
+    });
+    let mut r = results(dir.path(), &p, &url, &out);
+    wait_for("the result", &mut [&mut w, &mut r], || result_dirs(&out).len() == 1 && ledger(&out) == 1);
+    // The sink crashed after its result was in place and before the acknowledgement and the
+    // ledger entry: the ledger is gone, and the job comes again.
+    for f in files_in(&out.join(".nats/done/results")) {
+        std::fs::remove_file(out.join(".nats/done/results").join(f)).unwrap();
+    }
+    nats.block_on(async {
+        let mut h = async_nats::HeaderMap::new();
+        for k in ["Shapeforest-Format", "Shapeforest-Version", "Shapeforest-Key", "Shapeforest-Name"] {
+            h.insert(k, raw.headers.get(k).unwrap().as_str());
+        }
+        let ack = nats
+            .jetstream()
+            .publish_with_headers(edge.subject.clone(), h, raw.payload.clone())
+            .await
+            .unwrap();
+        ack.await.unwrap();
+    });
+    wait_for_log(&mut r, "the second delivery skipped", |l| l.contains("already written as"));
+    thread::sleep(Duration::from_secs(1));
+    assert_eq!(result_dirs(&out), vec!["scan-creature8".to_string()], "written once");
+    assert_eq!(backlog(&nats, "fmap", "results"), (0, 0));
+    w.stop();
     r.stop();
 }
 
@@ -402,4 +544,87 @@ fn a_burst_of_1000_scans_is_held_by_the_queue_not_by_the_worker() {
     assert_eq!(one["kind"], "BadInput", "{one}");
     w.stop();
     r.stop();
+}
+
+/// `(deleted, objects before)` from `shapeforest gc`'s line.
+fn gc(p: &Path, url: &str, extra: &[&str]) -> (usize, usize, String) {
+    let mut args: Vec<&OsStr> =
+        vec!["gc".as_ref(), "--pipeline".as_ref(), p.as_os_str(), "--nats".as_ref(), url.as_ref()];
+    args.extend(extra.iter().map(OsStr::new));
+    let (status, out, err) = run_cli(&args, timeout());
+    assert!(status.success(), "gc failed: {out}\n{err}");
+    let words: Vec<&str> = out.split_whitespace().collect();
+    let at = words.iter().position(|w| *w == "deleted").unwrap_or_else(|| panic!("{out}"));
+    (words[at + 1].parse().unwrap(), words[at + 3].parse().unwrap(), out)
+}
+
+#[test]
+fn gc_deletes_the_objects_of_finished_jobs_and_keeps_what_waiting_jobs_need() {
+    let Some(Cluster { dir, server: _server, url, data, p }) = Cluster::start("") else { return };
+    publish_model(&p, &url, &data);
+    let out = dir.path().join("out");
+    let mut w = worker(dir.path(), &p, &url, "w", None);
+    let mut r = results(dir.path(), &p, &url, &out);
+    submit_files(&p, &url, &scans(&dir.path().join("in"), 8, 1));
+    wait_for("the first result", &mut [&mut w, &mut r], || result_dirs(&out).len() == 1);
+    thread::sleep(Duration::from_secs(1));
+    w.stop();
+    // A second scan waits in the queue (no worker runs): its file must survive a collection.
+    submit_files(&p, &url, &scans(&dir.path().join("in2"), 9, 1));
+    let (deleted, _, text) = gc(&p, &url, &[]);
+    assert_eq!(deleted, 0, "everything is younger than the default grace: {text}");
+    let (deleted, before, text) = gc(&p, &url, &["--grace-s", "0"]);
+    assert!(deleted >= 5, "the finished job's mesh, spectrum, prediction, matches, map…: {text}");
+    assert_eq!(before - deleted, 2, "kept: the waiting scan's file and the model bundle: {text}");
+    assert!(text.contains("referring to 2 object(s)"), "{text}");
+    // The waiting scan still goes through, with the model kept.
+    let mut w = worker(dir.path(), &p, &url, "w2", None);
+    wait_for("the second result", &mut [&mut w, &mut r], || result_dirs(&out).len() == 2);
+    assert!(rejected_reports(&out).is_empty(), "{:?}", rejected_reports(&out));
+    w.stop();
+    r.stop();
+}
+
+#[test]
+fn a_job_dead_lettered_for_its_deliveries_leaves_nothing_in_the_spool() {
+    use shapeforest::pipeline::{
+        nats::NatsTransport, DataDir, Envelope, ErasedTransport, InputFile, Job, LiveModel, PipelineSpec,
+        Receiver, Sender, Shutdown,
+    };
+    use std::{any::TypeId, sync::Arc};
+    let Some(Cluster { dir, server: _server, url, data: _, p }) = Cluster::start("nats_max_deliver = 1")
+    else {
+        return;
+    };
+    let spec = PipelineSpec::from_file(&p).unwrap();
+    let mut settings = NatsSettings::from_spec(&spec, Some(&url)).unwrap();
+    settings.ack_wait = Duration::from_secs(2);
+    let nats = Nats::connect(settings).unwrap();
+    let data = DataDir::new(dir.path().join("worker"));
+    let t =
+        NatsTransport::new(nats.clone(), &spec, data.clone(), Arc::new(LiveModel::new()), Shutdown::new());
+    type Pair = (Arc<dyn Sender<InputFile>>, Box<dyn Receiver<InputFile>>);
+    let (tx, rx) = *t
+        .connect_erased("scans", "read-scans", 1, TypeId::of::<InputFile>())
+        .unwrap()
+        .downcast::<Pair>()
+        .unwrap();
+    let scan = scans(&dir.path().join("in"), 8, 1).remove(0);
+    let body = Ok(InputFile { path: scan.clone(), labels: None });
+    nats.block_on(tx.send(Envelope { job: Job::for_file(1, &scan, None), body })).unwrap();
+    let spool = data.root().join(".nats/spool");
+    // The first delivery is spooled, then lost (its worker "dies": the delivery is dropped).
+    let first = nats.block_on(rx.recv()).unwrap();
+    assert!(first.body.is_ok());
+    assert_eq!(files_in(&spool).len(), 1, "spooled while held");
+    drop(first);
+    // Its second delivery is one more than max_deliver: dead-lettered, and its spool removed.
+    let second = nats.block_on(rx.recv()).unwrap();
+    let e = second.body.as_ref().unwrap_err();
+    assert!(e.message.contains("no worker finished this job in 1 deliveries"), "{e}");
+    assert!(files_in(&spool).is_empty(), "{:?}", files_in(&spool));
+    drop(second);
+    thread::sleep(Duration::from_millis(500));
+    assert!(files_in(&spool).is_empty(), "{:?}", files_in(&spool));
+    assert_eq!(dead_letters(&nats).len(), 1);
 }

@@ -148,10 +148,14 @@ pub struct EvalArgs {
     /// Perturbed copies per training shape and --augment kind.
     #[arg(long, default_value_t = 4)]
     pub augment_copies: usize,
-    /// Also measure the regularised map refined by ZoomOut (the `forest+reg+zo` row; with
-    /// --pairs / --protocol the maps onto the reference are refined too).
-    #[arg(long)]
+    /// Also measure the regularised map refined by ZoomOut (the `forest+reg+zo` row). With
+    /// --pairs / --protocol, ZoomOut is on by default (maps onto the reference and pair maps).
+    #[arg(long, conflicts_with = "no_zoomout")]
     pub zoomout: bool,
+    /// With --pairs / --protocol: no ZoomOut refinement (the `pair+zoomout` row then refines
+    /// the pair map alone).
+    #[arg(long)]
+    pub no_zoomout: bool,
     /// Basis functions added per ZoomOut step.
     #[arg(long, default_value_t = 5, value_name = "N")]
     pub zoomout_step: usize,
@@ -167,7 +171,7 @@ pub struct EvalArgs {
     pub zoomout_radius: Option<f64>,
     /// Farthest-point samples on which a ZoomOut result must be closer to an isometry than the
     /// map it started from to be kept (0: always keep it).
-    #[arg(long, default_value_t = 100, value_name = "N")]
+    #[arg(long, default_value_t = 0, value_name = "N")]
     pub zoomout_check: usize,
 }
 
@@ -184,10 +188,15 @@ impl EvalArgs {
         }
     }
 
-    /// The regulariser's settings of the command line.
-    pub(super) fn regularizer_params(&self) -> shapeforest::regularizer::RegularizerParams {
+    /// The regulariser's settings of the command line; `zoomout_default`: whether ZoomOut is on
+    /// unless --no-zoomout says otherwise.
+    pub(super) fn regularizer_params(
+        &self,
+        zoomout_default: bool,
+    ) -> shapeforest::regularizer::RegularizerParams {
+        let on = self.zoomout || (zoomout_default && !self.no_zoomout);
         shapeforest::regularizer::RegularizerParams {
-            zoomout: self.zoomout.then(|| self.zoomout_params()),
+            zoomout: on.then(|| self.zoomout_params()),
             ..Default::default()
         }
     }
@@ -614,7 +623,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         fill_holes: (args.fill_perimeter > 0.0).then_some(args.fill_perimeter),
         augment: args.augment.iter().map(|&p| vec![p]).collect(),
         augment_copies: args.augment_copies,
-        regularizer: args.regularizer_params(),
+        regularizer: args.regularizer_params(false),
         ..ProtocolParams::default()
     };
     let n_labels = class.shapes[0].truth.len();

@@ -132,7 +132,7 @@ pub fn run(
         pairs,
         forest: RandomForest::params().n_trees(args.trees).seed(args.seed),
         cache_dir: (!args.no_cache).then(|| args.cache.clone()),
-        regularizer: args.regularizer_params(),
+        regularizer: args.regularizer_params(true),
         zoomout: args.zoomout_params(),
         ..PairsParams::default()
     };

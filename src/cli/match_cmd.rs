@@ -57,10 +57,13 @@ pub struct MatchArgs {
     /// Spectrum cache folder (none by default).
     #[arg(long)]
     pub cache: Option<PathBuf>,
-    /// Refine the regularised map by ZoomOut (kept only where it brings the map closer to an
-    /// isometry; see README, "ZoomOut refinement").
-    #[arg(long)]
+    /// Refine the regularised map by ZoomOut (see README, "ZoomOut refinement"); on by default
+    /// with --to.
+    #[arg(long, conflicts_with = "no_zoomout")]
     pub zoomout: bool,
+    /// No ZoomOut refinement, also with --to.
+    #[arg(long)]
+    pub no_zoomout: bool,
 }
 
 fn stem(p: &Path) -> String {
@@ -175,7 +178,8 @@ pub fn run(args: MatchArgs) -> Result<()> {
         None => None,
     };
     let reg = RegularizerParams {
-        zoomout: args.zoomout.then(shapeforest::regularizer::ZoomOutParams::default),
+        zoomout: (args.zoomout || (args.to.is_some() && !args.no_zoomout))
+            .then(shapeforest::regularizer::ZoomOutParams::default),
         ..Default::default()
     };
     let k = forest.k().max(reg.fmap.k_test).max(reg.fmap.k_ref);

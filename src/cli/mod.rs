@@ -60,6 +60,9 @@ pub enum Command {
     Submit(scale::SubmitArgs),
     /// Write the workers' results into OUT/matched/ and OUT/rejected/ (the daemon's layout).
     Results(scale::ResultsArgs),
+    /// Delete what the NATS object store no longer needs: objects no waiting message refers
+    /// to, model versions older than the last few.
+    Gc(scale::GcArgs),
 }
 
 /// Sets up `tracing` output on stderr (`quiet`: errors only, unless `RUST_LOG` says otherwise).
@@ -93,5 +96,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Worker(args) => scale::worker(args),
         Command::Submit(args) => scale::submit(args),
         Command::Results(args) => scale::results(args),
+        Command::Gc(args) => scale::gc(args),
     }
 }

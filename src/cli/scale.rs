@@ -71,6 +71,25 @@ pub struct ResultsArgs {
     pub stop_after: Option<f64>,
 }
 
+/// Arguments of `shapeforest gc`.
+#[derive(Debug, Args)]
+pub struct GcArgs {
+    /// Pipeline file (default: pipelines/watch.toml, or the built-in copy).
+    #[arg(long)]
+    pub pipeline: Option<PathBuf>,
+    /// NATS server URL.
+    #[arg(long)]
+    pub nats: Option<String>,
+    /// Model versions kept: the current one and those just before it (and any version a
+    /// waiting job names).
+    #[arg(long, default_value_t = 3)]
+    pub keep_models: u64,
+    /// Objects younger than this many seconds are kept (a stage stores its output before it
+    /// publishes the message naming it).
+    #[arg(long, default_value_t = 600.0)]
+    pub grace_s: f64,
+}
+
 /// Arguments of `shapeforest submit`.
 #[derive(Debug, Args)]
 pub struct SubmitArgs {
@@ -171,9 +190,10 @@ fn hostname() -> String {
     std::fs::read_to_string("/etc/hostname").map(|h| h.trim().to_string()).unwrap_or_else(|_| "host".into())
 }
 
-/// The stages a worker runs by default: every stage that is neither a source nor a sink,
-/// less those whose output only travels in process to a stage left out (the trainer's chain:
-/// its spectra do not travel, so it runs where the trainer is named).
+/// The stages a worker runs by default: every stage that is neither a source nor a sink
+/// (less any whose output could only travel in process to a stage left out; today every edge
+/// travels, so none is cut: the labelled shapes' spectra, too, are computed by any worker and
+/// queued for the trainer).
 fn default_stages(spec: &PipelineSpec) -> HashSet<String> {
     let mut only: HashSet<String> = spec
         .stages
@@ -237,6 +257,32 @@ pub fn results(args: ResultsArgs) -> Result<()> {
     }
     eprintln!("shapeforest: writing results into {}", args.out.display());
     run_worker(&spec, args.nats.as_deref(), only, DataDir::new(args.out), args.stop_after)
+}
+
+/// Runs `shapeforest gc`.
+pub fn gc(args: GcArgs) -> Result<()> {
+    if args.keep_models == 0 {
+        bail!("--keep-models 0: at least the current model is kept");
+    }
+    if !(args.grace_s.is_finite() && args.grace_s >= 0.0) {
+        bail!("--grace-s {}: a number of seconds, 0 or more", args.grace_s);
+    }
+    let spec = read_spec(args.pipeline.as_deref())?;
+    let nats = Nats::connect(NatsSettings::from_spec(&spec, args.nats.as_deref())?)?;
+    let grace = Duration::from_secs_f64(args.grace_s);
+    let r = nats
+        .block_on(shapeforest::pipeline::nats::gc::collect(&nats, args.keep_models, grace))
+        .map_err(|e| anyhow!(e))?;
+    println!(
+        "read {} waiting message(s) referring to {} object(s); deleted {} of {} object(s) ({:.1} MB) and model version(s) {:?}",
+        r.messages,
+        r.referenced,
+        r.deleted,
+        r.objects,
+        r.deleted_bytes as f64 / 1e6,
+        r.deleted_models
+    );
+    Ok(())
 }
 
 /// Runs `shapeforest submit`.

@@ -116,14 +116,18 @@ pub trait PooledReport {
         (ErrorSummary::of(&s), y.map(|y| ErrorSummary::of(&y)))
     }
 
-    /// Cumulative curves: one per method (strict), then one per method with flips allowed
-    /// (named `NAME (sym)`) when a symmetry map was given.
+    /// Cumulative curves: one per method that was run (strict), then one per method with flips
+    /// allowed (named `NAME (sym)`) when a symmetry map was given.
     fn curves(&self, steps: usize) -> Vec<CurveSeries> {
         let mut out = Vec::new();
         let mut sym = Vec::new();
         for &m in Self::METHODS {
             let name = Self::method_name(m);
             let (s, y) = self.pooled(m);
+            if s.is_empty() {
+                // A method that was not run (the baseline when skipped, ZoomOut when off).
+                continue;
+            }
             out.push(CurveSeries { name: name.to_string(), curve: cumulative_curve(&s, steps) });
             if let Some(y) = y {
                 sym.push(CurveSeries { name: format!("{name} (sym)"), curve: cumulative_curve(&y, steps) });

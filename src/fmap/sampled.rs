@@ -219,9 +219,16 @@ pub fn zoomout_on_samples(
     let mut gram = Mat::<f64>::zeros(kf, kf);
     matmul(gram.as_mut(), Accum::Replace, weighted.transpose(), phi_t.as_ref(), 1.0, Par::rayon(0));
     let fit = |targets: &[usize], k: usize, target_rows: &dyn Fn(usize, usize) -> f64| {
-        let target = Mat::from_fn(targets.len(), k, |i, j| target_rows(i, j));
+        let target = Mat::from_fn(targets.len(), k, target_rows);
         let mut rhs = Mat::<f64>::zeros(k, k);
-        matmul(rhs.as_mut(), Accum::Replace, weighted.subcols(0, k).transpose(), target.as_ref(), 1.0, Par::Seq);
+        matmul(
+            rhs.as_mut(),
+            Accum::Replace,
+            weighted.subcols(0, k).transpose(),
+            target.as_ref(),
+            1.0,
+            Par::Seq,
+        );
         let llt = gram.subrows(0, k).subcols(0, k).to_owned().llt(Side::Lower).map_err(|_| {
             FmapError::InvalidParameter {
                 name: "zoomout samples",
@@ -295,7 +302,9 @@ pub fn point_to_point_in_cells(
                 )));
             }
             check_map(map, reference, Some(balls), reference_cells)?;
-            nearest_among(queries, sample_points.as_ref(), |m| balls.of(reference_cells.cell_of[map[m]] as usize))
+            nearest_among(queries, sample_points.as_ref(), |m| {
+                balls.of(reference_cells.cell_of[map[m]] as usize)
+            })
         }
     };
     let mut out = vec![0usize; test.n_vertices];

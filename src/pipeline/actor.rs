@@ -435,6 +435,8 @@ pub async fn run_sink<S: Sink>(
         let waiting = rx.clone();
         let consumed = on_blocking_pool(s, move |s| {
             let r = s.consume(job, body);
+            // A durable queue acknowledges the job, or delivers it again, by this outcome.
+            waiting.consumed(r.as_ref().map(|_| ()).map_err(|e| e.to_string()));
             // Let a batching sink act once nothing else is waiting.
             if waiting.is_empty() {
                 r.and_then(|_| s.idle())

@@ -46,6 +46,9 @@ pub struct Job {
     /// The queue message the job came from, under a networked transport (`None` in process):
     /// acknowledged once the job is done with, redelivered if it is lost.
     pub delivery: Option<super::transport::Delivery>,
+    /// The job's key under a networked transport (its input's content key and a nonce; `None`
+    /// in process): a job may be delivered more than once, and a sink writes each key once.
+    pub key: Option<String>,
 }
 
 impl Job {
@@ -61,6 +64,7 @@ impl Job {
             started: Instant::now(),
             stage_seconds: Vec::new(),
             delivery: None,
+            key: None,
         }
     }
 
@@ -76,6 +80,7 @@ impl Job {
             started: Instant::now(),
             stage_seconds: Vec::new(),
             delivery: None,
+            key: None,
         }
     }
 
@@ -253,6 +258,9 @@ pub struct SparselyMatched {
     pub predicted: PredictedShape,
     /// The shape prepared for geodesics (heat-method factorisation), reused by the dense step.
     pub prepared: Arc<PreparedShape>,
+    /// The heat-method parameters `prepared` was made with (a receiver on another machine
+    /// prepares the shape again with them).
+    pub heat: crate::geodesic::HeatParams,
     /// The matches.
     pub sparse: Arc<SparseMatches>,
 }

@@ -67,6 +67,6 @@ pub use store::{
     DataDir, InputKind, ModelManifest, Recovery,
 };
 pub use transport::{
-    Delivery, Dynamic, ErasedTransport, InProcess, Output, Payload, Receiver, Sender, Settle, Settling,
-    Transport,
+    Delivery, Dynamic, ErasedTransport, InProcess, Output, Payload, Receiver, Sender, Settle, Settled,
+    Settling, Transport,
 };

@@ -46,6 +46,11 @@ pub trait Receiver<T>: Send + Sync {
     fn recv(&self) -> BoxFuture<'_, Option<Envelope<T>>>;
     /// Whether nothing is waiting right now.
     fn is_empty(&self) -> bool;
+    /// Called by a sink's loop once it has consumed the job last received: `Err(why)` when it
+    /// could not (its result could not be written: a full disk, a read-only folder). A durable
+    /// queue then delivers the job again instead of acknowledging it; in process it does
+    /// nothing (the sink defers the claimed input itself).
+    fn consumed(&self, _outcome: Result<(), String>) {}
 }
 
 /// Makes the connection of one edge, `producer → consumer`, holding up to `capacity`
@@ -178,12 +183,22 @@ impl<T: Payload> Output<T> {
     }
 }
 
-/// How a delivery from a durable queue ends: [`Settle::settle`] is called once, with `true`
-/// when the job is done with (its output published further, or consumed by a sink) and
-/// `false` when it must be delivered again (a worker gave it up, e.g. at shutdown).
+/// How a delivery from a durable queue ended.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Settled {
+    /// The job is done with (its output published further, or consumed by a sink).
+    Done,
+    /// A worker gave it up unfinished (a shutdown, a dropped copy): deliver it again.
+    Lost,
+    /// Its consumer failed on it (a sink could not write the result): deliver it again after
+    /// a pause, and dead-letter it with this error once its deliveries are spent.
+    Failed(String),
+}
+
+/// How a delivery from a durable queue ends: [`Settle::settle`] is called once.
 pub trait Settle: Send + Sync {
     /// Ends the delivery.
-    fn settle(&self, done: bool);
+    fn settle(&self, outcome: Settled);
 }
 
 /// A job's claim on the queue message it came from (a networked transport's delivery), carried
@@ -200,6 +215,7 @@ struct DeliveryInner {
     key: String,
     settle: Box<dyn Settle>,
     lost: std::sync::atomic::AtomicBool,
+    failed: std::sync::Mutex<Option<String>>,
 }
 
 impl Delivery {
@@ -210,6 +226,7 @@ impl Delivery {
             key: key.into(),
             settle: Box::new(settle),
             lost: std::sync::atomic::AtomicBool::new(false),
+            failed: std::sync::Mutex::new(None),
         };
         Self { inner: Arc::new(inner), done: false }
     }
@@ -221,6 +238,15 @@ impl Delivery {
 
     /// This copy of the job is done with.
     pub fn done(mut self) {
+        self.done = true;
+    }
+
+    /// This copy of the job failed in its consumer (`why`): the job is delivered again later,
+    /// and dead-lettered with `why` once its deliveries are spent.
+    pub fn failed(mut self, why: impl Into<String>) {
+        if let Ok(mut f) = self.inner.failed.lock() {
+            *f = Some(why.into());
+        }
         self.done = true;
     }
 }
@@ -241,7 +267,13 @@ impl Drop for Delivery {
 
 impl Drop for DeliveryInner {
     fn drop(&mut self) {
-        self.settle.settle(!self.lost.load(std::sync::atomic::Ordering::Relaxed));
+        let failed = self.failed.lock().ok().and_then(|mut f| f.take());
+        let outcome = match failed {
+            Some(why) => Settled::Failed(why),
+            None if self.lost.load(std::sync::atomic::Ordering::Relaxed) => Settled::Lost,
+            None => Settled::Done,
+        };
+        self.settle.settle(outcome);
     }
 }
 
@@ -252,9 +284,11 @@ impl std::fmt::Debug for Delivery {
 }
 
 /// The receiving end of a sink's edge under a networked transport: a job's [`Delivery`] is
-/// held here while the sink consumes it and marked done when the sink asks for the next job
-/// (a sink consumes one job at a time), so the queue message is acknowledged only after the
-/// result is written. An interrupted job is handed back instead.
+/// held here while the sink consumes it and settled when the sink's loop reports how that
+/// went ([`Receiver::consumed`]; or, failing that, when the sink asks for the next job: a
+/// sink consumes one job at a time), so the queue message is acknowledged only after the
+/// result is written, and a job whose result could not be written is delivered again. An
+/// interrupted job is handed back instead.
 pub struct Settling<T> {
     inner: Arc<dyn Receiver<T>>,
     held: std::sync::Mutex<Option<Delivery>>,
@@ -295,6 +329,15 @@ impl<T: Payload> Receiver<T> for Settling<T> {
 
     fn is_empty(&self) -> bool {
         self.inner.is_empty()
+    }
+
+    fn consumed(&self, outcome: Result<(), String>) {
+        let held = self.held.lock().ok().and_then(|mut h| h.take());
+        match (held, outcome) {
+            (Some(d), Ok(())) => d.done(),
+            (Some(d), Err(why)) => d.failed(why),
+            (None, _) => {}
+        }
     }
 }
 

@@ -32,7 +32,9 @@ pub fn sample_cells(mesh: &Mesh, n: usize) -> Result<SampleCells, Error> {
             }
             let p = mesh.vertices[v];
             (0..samples.len())
-                .min_by(|&i, &j| d2(p, mesh.vertices[samples[i]]).total_cmp(&d2(p, mesh.vertices[samples[j]])))
+                .min_by(|&i, &j| {
+                    d2(p, mesh.vertices[samples[i]]).total_cmp(&d2(p, mesh.vertices[samples[j]]))
+                })
                 .unwrap_or(0) as u32
         })
         .collect();
@@ -46,7 +48,9 @@ pub fn sample_cells(mesh: &Mesh, n: usize) -> Result<SampleCells, Error> {
 pub fn cell_balls(mesh: &Mesh, cells: &SampleCells, radius: f64) -> CellBalls {
     let ns = cells.samples.len();
     let pos = |c: usize| mesh.vertices[cells.samples[c]];
-    let dist = |a: [f64; 3], b: [f64; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    let dist = |a: [f64; 3], b: [f64; 3]| {
+        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+    };
     let mut offsets = Vec::with_capacity(ns + 1);
     offsets.push(0);
     let mut out = Vec::new();
@@ -114,7 +118,8 @@ pub fn map_distortion(
 ) -> Result<f64, Error> {
     let targets: Vec<usize> = samples.iter().map(|&s| map[s]).collect();
     let ref_fields = reference.heat.distances_from_many(&targets)?;
-    let (st, sr) = (1.0 / test_sqrt_area.max(f64::MIN_POSITIVE), 1.0 / reference.sqrt_area().max(f64::MIN_POSITIVE));
+    let (st, sr) =
+        (1.0 / test_sqrt_area.max(f64::MIN_POSITIVE), 1.0 / reference.sqrt_area().max(f64::MIN_POSITIVE));
     let n = samples.len();
     let mut total = 0.0;
     for i in 0..n {
@@ -150,14 +155,99 @@ pub fn refine_zoomout(
         schedule,
     )?;
     let restrict = balls.as_ref().map(|b| (b, map));
-    let refined = point_to_point_in_cells(&test.spectrum, &reference.spectrum, &reference_cells, restrict, c.as_ref())?;
+    let refined =
+        point_to_point_in_cells(&test.spectrum, &reference.spectrum, &reference_cells, restrict, c.as_ref())?;
     if params.check_samples == 0 {
         return Ok(Some(refined));
     }
     // Keep the refinement only if it brings the map closer to an isometry.
-    let samples = farthest_point_sampling_euclidean(&test.mesh, params.check_samples.min(test.mesh.n_vertices()), None)?;
+    let samples = farthest_point_sampling_euclidean(
+        &test.mesh,
+        params.check_samples.min(test.mesh.n_vertices()),
+        None,
+    )?;
     let fields = test.heat.distances_from_many(&samples)?;
     let before = map_distortion(reference, &fields, &samples, test.sqrt_area(), map)?;
     let after = map_distortion(reference, &fields, &samples, test.sqrt_area(), &refined)?;
     Ok((after <= before).then_some(refined))
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use rand::{Rng, SeedableRng};
+
+    use super::*;
+    use crate::{geodesic::HeatParams, spectral::dense_spectrum, synth::icosphere};
+
+    /// An ellipsoid (distinct axes, so that its low eigenfunctions are not degenerate).
+    fn ellipsoid() -> PreparedShape {
+        let mut mesh = icosphere(3, 1.0);
+        for v in &mut mesh.vertices {
+            v[1] *= 1.3;
+            v[2] *= 1.7;
+        }
+        let spectrum = Arc::new(dense_spectrum(&mesh, 40).unwrap());
+        PreparedShape::new(Arc::new(mesh), spectrum, HeatParams::default()).unwrap()
+    }
+
+    #[test]
+    fn zoomout_on_samples_sharpens_a_map_that_is_right_in_the_large() {
+        let shape = ellipsoid();
+        let n = shape.mesh.n_vertices();
+        // The true map is the identity; start from every vertex sent to a random mesh neighbour.
+        let mut neighbours = vec![Vec::new(); n];
+        for f in &shape.mesh.faces {
+            for (a, b) in [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])] {
+                neighbours[a].push(b);
+                neighbours[b].push(a);
+            }
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let noisy: Vec<usize> =
+            (0..n).map(|v| neighbours[v][rng.random_range(0..neighbours[v].len())]).collect();
+        assert!(noisy.iter().enumerate().all(|(v, &r)| v != r));
+        // Fewer samples than vertices: the sampled iterations and the read-back in cells.
+        let params = ZoomOutParams {
+            k_start: 10,
+            k_final: 40,
+            step: 3,
+            samples: n / 2,
+            radius: None,
+            check_samples: 0,
+        };
+        let refined = refine_zoomout(&shape, &shape, &noisy, &params).unwrap().unwrap();
+        let correct = refined.iter().enumerate().filter(|&(v, &r)| v == r).count();
+        assert!(correct * 10 >= n * 9, "{correct} of {n} vertices mapped to themselves");
+        // Restricted to balls and checked against the isometry: still sharp, and kept.
+        let params = ZoomOutParams { radius: Some(0.2), check_samples: 30, ..params };
+        let refined =
+            refine_zoomout(&shape, &shape, &noisy, &params).unwrap().expect("closer to an isometry");
+        let correct = refined.iter().enumerate().filter(|&(v, &r)| v == r).count();
+        assert!(correct * 10 >= n * 9, "{correct} of {n} vertices mapped to themselves (restricted)");
+    }
+
+    #[test]
+    fn a_refinement_farther_from_an_isometry_is_not_kept() {
+        let shape = ellipsoid();
+        let n = shape.mesh.n_vertices();
+        let identity: Vec<usize> = (0..n).collect();
+        let samples = farthest_point_sampling_euclidean(&shape.mesh, 30, None).unwrap();
+        let fields = shape.heat.distances_from_many(&samples).unwrap();
+        let exact = map_distortion(&shape, &fields, &samples, shape.sqrt_area(), &identity).unwrap();
+        assert!(exact < 1e-9, "{exact}");
+        // Everything onto one vertex is far from an isometry.
+        let collapsed = vec![0; n];
+        let bad = map_distortion(&shape, &fields, &samples, shape.sqrt_area(), &collapsed).unwrap();
+        assert!(bad > 0.1, "{bad}");
+        // Starting from the exact map, ZoomOut at too small a basis cannot improve it: a
+        // refinement at least as good is kept, never a worse one.
+        let params =
+            ZoomOutParams { k_start: 3, k_final: 3, step: 1, samples: n, radius: None, check_samples: 30 };
+        if let Some(r) = refine_zoomout(&shape, &shape, &identity, &params).unwrap() {
+            let d = map_distortion(&shape, &fields, &samples, shape.sqrt_area(), &r).unwrap();
+            assert!(d <= exact + 1e-12);
+        }
+    }
 }

@@ -2,8 +2,8 @@
 //! machines, share the work of one pipeline file.
 //!
 //! [`NatsTransport`] implements the transport seam ([`super::transport::ErasedTransport`]).
-//! Each edge `producer → consumer` whose payload can travel (input files and dense maps, see
-//! below) is a stream `PREFIX_<producer>_<consumer>` with work-queue retention (a message is
+//! Every edge `producer → consumer` of the graph (input files, shapes, spectra, descriptors,
+//! predictions, sparse matches, dense maps) is a stream `PREFIX_<producer>_<consumer>` with work-queue retention (a message is
 //! gone once acknowledged) and one durable pull consumer named after the consuming stage,
 //! shared by every worker that runs it: explicit acknowledgements, `max_ack_pending` as the
 //! back-pressure the bounded channels give in process, redelivery after `ack_wait` of a job
@@ -17,12 +17,15 @@
 //! keeps a ledger of the jobs it finished (by the input's content key and a job nonce), so
 //! each scan's result is written once.
 //!
-//! Payloads that hold in-process state — the descriptor, prediction and sparse-match edges
-//! carry the live model snapshot and the heat-method factorisation — stay in process: the
-//! stages on both ends run in the same worker (`shapeforest worker --stages` checks it).
-//! Model versions go to the object store as bundles, the current version into the key-value
-//! bucket `PREFIX-model`; every worker follows it ([`model_sync`]).
+//! Payloads that hold in-process state travel as keys: the model snapshot as its version (a
+//! worker that lacks it fetches the bundle from the store), the forest descriptor as nothing
+//! (the receiver makes it again from the spectrum and the model), the heat-method factorisation
+//! as its parameters (the receiver factorises again from the mesh). So any stage can run on
+//! any worker (`shapeforest worker --stages`). Model versions go to the object store as
+//! bundles, the current version into the key-value bucket `PREFIX-model`; every worker follows
+//! it ([`model_sync`]).
 
+pub mod gc;
 pub mod model_sync;
 pub mod wire;
 
@@ -37,18 +40,21 @@ use std::{
 use async_nats::jetstream::{self, consumer::pull, kv, object_store, stream, AckKind};
 use futures_util::StreamExt;
 
-use self::wire::{BlobRef, WireEnvelope, WireFailure, WireFileRef, WireInput, WireJob, WireMatched};
+use self::wire::{
+    BlobRef, WireDescribed, WireEnvelope, WireFailure, WireFileRef, WireInput, WireJob, WireMatched,
+    WirePredicted, WireShape, WireSparselyMatched, WireSpectral,
+};
 use super::{
     config::{PipelineSpec, PortType},
     error::Error,
     message::{
-        Envelope, Failure, FailureKind, InputFile, Job, LabelSpec, MatchedShape, PartialScan, PredictedShape,
-        Shape, SpectralShape,
+        DescribedShape, Envelope, Failure, FailureKind, InputFile, Job, LabelSpec, MatchedShape, PartialScan,
+        PredictedShape, Shape, SparselyMatched, SpectralShape,
     },
     model::{LiveModel, ModelState, ServeNeeds},
     shutdown::Shutdown,
     store::{is_claimed, DataDir},
-    transport::{BoxFuture, Delivery, ErasedTransport, Receiver, SendError, Sender, Settle},
+    transport::{BoxFuture, Delivery, ErasedTransport, Receiver, SendError, Sender, Settle, Settled},
 };
 
 /// How to reach JetStream and how its streams behave (`[settings]` of a pipeline file, or the
@@ -106,8 +112,45 @@ pub struct Nats {
     blobs_name: String,
     blobs_stream: stream::Stream,
     kv: kv::Store,
+    cache: std::sync::Mutex<BlobCache>,
     /// The settings.
     pub settings: NatsSettings,
+}
+
+/// Objects this process stored or read lately, by content key, up to [`BlobCache::CAPACITY`]
+/// bytes: a stage that reads what its own worker's previous stage just stored (the spectrum is
+/// read by the descriptor, forest, matcher and fmap stages) does not download it again. The
+/// keys are content hashes, so a cached object is never stale. (A FIFO of a few lines rather
+/// than an LRU crate: an object is read a few times right after it is stored, then never.)
+#[derive(Default)]
+struct BlobCache {
+    order: std::collections::VecDeque<String>,
+    objects: HashMap<String, Arc<Vec<u8>>>,
+    bytes: usize,
+}
+
+impl BlobCache {
+    /// Bytes kept at most (a 20K-vertex scan's objects are ~32 MB).
+    const CAPACITY: usize = 128 << 20;
+
+    fn get(&self, key: &str) -> Option<Arc<Vec<u8>>> {
+        self.objects.get(key).cloned()
+    }
+
+    fn insert(&mut self, key: &str, bytes: Arc<Vec<u8>>) {
+        if bytes.len() > Self::CAPACITY / 2 || self.objects.contains_key(key) {
+            return;
+        }
+        self.bytes += bytes.len();
+        self.objects.insert(key.to_string(), bytes);
+        self.order.push_back(key.to_string());
+        while self.bytes > Self::CAPACITY {
+            let Some(old) = self.order.pop_front() else { break };
+            if let Some(b) = self.objects.remove(&old) {
+                self.bytes -= b.len();
+            }
+        }
+    }
 }
 
 impl Nats {
@@ -166,7 +209,8 @@ impl Nats {
         })?;
         // `retry_on_initial_connect` returns before the connection is made; the buckets above
         // waited for it.
-        Ok(Arc::new(Self { runtime, js, blobs, blobs_name, blobs_stream, kv, settings }))
+        let cache = Default::default();
+        Ok(Arc::new(Self { runtime, js, blobs, blobs_name, blobs_stream, kv, cache, settings }))
     }
 
     /// Runs `f` to completion on the connection's runtime (from a thread that is not inside
@@ -185,20 +229,33 @@ impl Nats {
         &self.kv
     }
 
+    fn cached(&self, key: &str) -> Option<Arc<Vec<u8>>> {
+        self.cache.lock().ok().and_then(|c| c.get(key))
+    }
+
+    fn remember(&self, key: &str, bytes: Arc<Vec<u8>>) {
+        if let Ok(mut c) = self.cache.lock() {
+            c.insert(key, bytes);
+        }
+    }
+
     /// Stores `bytes` under their content key (once: a part already stored is not sent again).
     pub async fn put_blob(&self, bytes: &[u8]) -> Result<BlobRef, String> {
         let key = wire::content_key(bytes);
         let blob = BlobRef { key: key.clone(), size: bytes.len() as u64 };
-        if let Ok(info) = self.blobs.info(&key).await {
-            if info.size as u64 == blob.size && !info.deleted {
-                return Ok(blob);
-            }
+        self.remember(&key, Arc::new(bytes.to_vec()));
+        // Asked even when cached: the store may have collected it since (see [`gc`]).
+        let stored = self.blobs.info(&key).await.is_ok_and(|i| i.size as u64 == blob.size && !i.deleted);
+        if !stored {
+            let mut reader = bytes;
+            self.blobs
+                .put(key.as_str(), &mut reader)
+                .await
+                .map_err(|e| format!("cannot store object {key}: {e}"))?;
         }
-        let mut reader = bytes;
-        self.blobs
-            .put(key.as_str(), &mut reader)
-            .await
-            .map_err(|e| format!("cannot store object {key}: {e}"))?;
+        if self.cached(&key).is_none() {
+            self.remember(&key, Arc::new(bytes.to_vec()));
+        }
         Ok(blob)
     }
 
@@ -208,6 +265,9 @@ impl Nats {
         let max = self.settings.max_object_bytes;
         if blob.size > max {
             return Err(format!("object {} is {} bytes, more than the {max} allowed", blob.key, blob.size));
+        }
+        if let Some(b) = self.cached(&blob.key).filter(|b| b.len() as u64 == blob.size) {
+            return Ok(b.to_vec());
         }
         let info = self.blobs.info(&blob.key).await.map_err(|e| format!("object {}: {e}", blob.key))?;
         if info.deleted || info.size as u64 != blob.size {
@@ -236,7 +296,9 @@ impl Nats {
         if bytes.len() as u64 != blob.size || wire::content_key(&bytes) != blob.key {
             return Err(format!("object {}: its contents do not match its key", blob.key));
         }
-        Ok(bytes)
+        let bytes = Arc::new(bytes);
+        self.remember(&blob.key, bytes.clone());
+        Ok(Arc::try_unwrap(bytes).unwrap_or_else(|b| b.to_vec()))
     }
 
     /// Stream, subject and durable consumer of the edge `producer → consumer`.
@@ -362,9 +424,19 @@ impl NatsTransport {
         Self { nats, data, sinks, shutdown, models }
     }
 
-    /// Whether edges of `port` travel between workers.
+    /// Whether edges of `port` travel between workers: every kind does (a payload's
+    /// in-process parts travel as keys, see the module's notes).
     pub fn carries(port: PortType) -> bool {
-        matches!(port, PortType::File | PortType::Map)
+        matches!(
+            port,
+            PortType::File
+                | PortType::Shape
+                | PortType::Spectrum
+                | PortType::Descriptor
+                | PortType::Prediction
+                | PortType::Matches
+                | PortType::Map
+        )
     }
 
     /// The sending end of an edge of input files (what `shapeforest submit` uses).
@@ -382,6 +454,19 @@ impl NatsTransport {
             shutdown: self.shutdown.clone(),
             _c: std::marker::PhantomData,
         }))
+    }
+
+    /// Both ends of an edge, boxed as [`ErasedTransport::connect_erased`] returns them.
+    fn pair<C: Codec>(
+        &self,
+        producer: &str,
+        consumer: &str,
+        capacity: usize,
+        codec: C,
+    ) -> Result<Box<dyn Any>, Error> {
+        let tx = self.sender::<C>(producer, consumer)?;
+        let rx = self.receiver(producer, consumer, capacity, codec)?;
+        Ok(Box::new((tx, rx)))
     }
 
     fn receiver<C: Codec>(
@@ -418,17 +503,22 @@ impl ErasedTransport for NatsTransport {
         capacity: usize,
         payload: TypeId,
     ) -> Option<Box<dyn Any>> {
+        let models = || self.models.clone();
         let r = if payload == TypeId::of::<InputFile>() {
             let spool = self.data.root().join(".nats").join("spool");
-            self.sender::<FileCodec>(producer, consumer).and_then(|tx| {
-                Ok(Box::new((tx, self.receiver(producer, consumer, capacity, FileCodec { spool })?))
-                    as Box<dyn Any>)
-            })
+            self.pair(producer, consumer, capacity, FileCodec { spool })
+        } else if payload == TypeId::of::<Shape>() {
+            self.pair(producer, consumer, capacity, ShapeCodec)
+        } else if payload == TypeId::of::<SpectralShape>() {
+            self.pair(producer, consumer, capacity, SpectralCodec)
+        } else if payload == TypeId::of::<DescribedShape>() {
+            self.pair(producer, consumer, capacity, DescribedCodec { models: models() })
+        } else if payload == TypeId::of::<PredictedShape>() {
+            self.pair(producer, consumer, capacity, PredictedCodec { models: models() })
+        } else if payload == TypeId::of::<SparselyMatched>() {
+            self.pair(producer, consumer, capacity, SparseCodec { models: models() })
         } else if payload == TypeId::of::<MatchedShape>() {
-            self.sender::<MapCodec>(producer, consumer).and_then(|tx| {
-                let codec = MapCodec { models: self.models.clone() };
-                Ok(Box::new((tx, self.receiver(producer, consumer, capacity, codec)?)) as Box<dyn Any>)
-            })
+            self.pair(producer, consumer, capacity, MapCodec { models: models() })
         } else {
             return None;
         };
@@ -483,6 +573,7 @@ fn wire_job(job: &Job, key: &str) -> WireJob {
 
 fn local_job(w: &WireJob) -> Job {
     let mut job = Job::generated(w.id, w.name.clone());
+    job.key = Some(w.key.clone());
     job.arrived_as = w.arrived_as.clone();
     job.stage_seconds = w.stage_seconds.clone();
     let age = Duration::from_millis(unix_ms().saturating_sub(w.submitted_unix_ms));
@@ -502,9 +593,10 @@ fn local_failure(f: WireFailure) -> Failure {
 
 /// A job's key: its first content key and a nonce (fresh for a job that starts here).
 fn job_key(job: &Job, content: &str) -> String {
-    match &job.delivery {
-        Some(d) => d.key().to_string(),
-        None => format!("{}-{:016x}", &content[..16.min(content.len())], rand::random::<u64>()),
+    match (&job.delivery, &job.key) {
+        (Some(d), _) => d.key().to_string(),
+        (None, Some(k)) => k.clone(),
+        (None, None) => format!("{}-{:016x}", &content[..16.min(content.len())], rand::random::<u64>()),
     }
 }
 
@@ -602,49 +694,94 @@ impl<C: Codec> Sender<C::T> for NatsSender<C> {
 /// Ends a delivery: acknowledges (recording a sink's job in its ledger first) or hands the
 /// message back; sends progress acknowledgements while the job is held.
 struct NatsSettle {
-    tx: std::sync::Mutex<Option<tokio::sync::oneshot::Sender<bool>>>,
+    tx: std::sync::Mutex<Option<tokio::sync::oneshot::Sender<Settled>>>,
 }
 
 impl Settle for NatsSettle {
-    fn settle(&self, done: bool) {
+    fn settle(&self, outcome: Settled) {
         if let Some(tx) = self.tx.lock().ok().and_then(|mut t| t.take()) {
-            let _ = tx.send(done);
+            let _ = tx.send(outcome);
         }
     }
 }
 
+/// Copies a message to the dead-letter stream, with the error in a header.
+async fn dead_letter(js: &jetstream::Context, subject: &str, msg: &jetstream::Message, why: &str) {
+    let mut headers = msg.headers.clone().unwrap_or_default();
+    headers.insert("Shapeforest-Error", crate::limits::escape_name(why).as_str());
+    let r = js.publish_with_headers(subject.to_string(), headers, msg.payload.clone()).await;
+    match r {
+        Ok(ack) => {
+            if let Err(e) = ack.await {
+                tracing::error!("the dead letter was not stored ({e})");
+            }
+        }
+        Err(e) => tracing::error!("cannot publish the dead letter ({e})"),
+    }
+}
+
+/// The pause before a job whose consumer failed is delivered again: 1 s, doubling with each
+/// delivery, at most 30 s.
+fn retry_delay(delivered: i64) -> Duration {
+    Duration::from_secs(1u64 << delivered.clamp(1, 6).saturating_sub(1)).min(Duration::from_secs(30))
+}
+
 fn hold(
     msg: jetstream::Message,
-    ack_wait: Duration,
+    nats: &Arc<Nats>,
+    dead_subject: String,
     ledger: Option<PathBuf>,
     spool: Option<PathBuf>,
-    handle: &tokio::runtime::Handle,
 ) -> NatsSettle {
-    let (tx, mut rx) = tokio::sync::oneshot::channel::<bool>();
-    handle.spawn(async move {
+    let (tx, mut rx) = tokio::sync::oneshot::channel::<Settled>();
+    let ack_wait = nats.settings.ack_wait;
+    let tries = i64::from(nats.settings.max_deliver);
+    let js = nats.js.clone();
+    nats.runtime.handle().spawn(async move {
         let every = (ack_wait / 3).max(Duration::from_millis(200));
-        let done = loop {
+        let outcome = loop {
             tokio::select! {
-                // The job is done with (or lost): settle it.
-                r = &mut rx => break r.unwrap_or(false),
+                // The job is done with (or lost, or failed): settle it.
+                r = &mut rx => break r.unwrap_or(Settled::Lost),
                 // Still working: tell the server, so that it does not redeliver.
                 _ = tokio::time::sleep(every) => {
                     let _ = msg.ack_with(AckKind::Progress).await;
                 }
             }
         };
-        if done {
-            if let Some(l) = &ledger {
-                let _ = std::fs::create_dir_all(l.parent().unwrap_or(Path::new(".")));
-                let _ = std::fs::write(l, b"");
+        match outcome {
+            Settled::Done => {
+                if let Some(l) = &ledger {
+                    let _ = std::fs::create_dir_all(l.parent().unwrap_or(Path::new(".")));
+                    let _ = std::fs::write(l, b"");
+                }
+                if let Err(e) = msg.double_ack().await {
+                    tracing::warn!(
+                        "acknowledgement lost ({e}); the job may be delivered again (the sink skips it)"
+                    );
+                }
             }
-            if let Err(e) = msg.double_ack().await {
-                tracing::warn!(
-                    "acknowledgement lost ({e}); the job may be delivered again (the sink skips it)"
-                );
+            Settled::Lost => {
+                let _ = msg.ack_with(AckKind::Nak(Some(Duration::from_millis(500)))).await;
             }
-        } else {
-            let _ = msg.ack_with(AckKind::Nak(Some(Duration::from_millis(500)))).await;
+            Settled::Failed(why) => {
+                let delivered = msg.info().map(|i| i.delivered).unwrap_or(1);
+                if delivered >= tries {
+                    let why =
+                        format!("{why} (in each of {delivered} deliveries); dead-lettered to {dead_subject}");
+                    tracing::error!("dead letter: {why}");
+                    dead_letter(&js, &dead_subject, &msg, &why).await;
+                    let _ = msg.ack_with(AckKind::Term).await;
+                } else {
+                    let delay = retry_delay(delivered);
+                    tracing::warn!(
+                        delivery = delivered,
+                        "{why}; the job is delivered again in {} s",
+                        delay.as_secs()
+                    );
+                    let _ = msg.ack_with(AckKind::Nak(Some(delay))).await;
+                }
+            }
         }
         if let Some(s) = spool {
             let _ = std::fs::remove_dir_all(s);
@@ -737,19 +874,6 @@ impl<C: Codec> NatsReceiver<C> {
         };
         Ok((job, w.job.key, body))
     }
-
-    async fn dead_letter(&self, msg: &jetstream::Message, why: &str) {
-        let mut headers = msg.headers.clone().unwrap_or_default();
-        headers.insert("Shapeforest-Error", crate::limits::escape_name(why).as_str());
-        let r = self
-            .nats
-            .js
-            .publish_with_headers(self.edge.dead_subject.clone(), headers, msg.payload.clone())
-            .await;
-        if let Ok(ack) = r {
-            let _ = ack.await;
-        }
-    }
 }
 
 impl<C: Codec> Receiver<C::T> for NatsReceiver<C> {
@@ -768,12 +892,18 @@ impl<C: Codec> Receiver<C::T> for NatsReceiver<C> {
                 let tries = i64::from(self.nats.settings.max_deliver);
                 let read = match self.read(&msg).await {
                     // Readable, but every worker that took it stopped before finishing it
-                    // (a crash, kill -9, an out-of-memory kill): it is not tried again.
-                    Ok(_) if delivered > tries => Err(format!(
-                        "no worker finished this job in {tries} deliveries (each one that took it stopped, \
-                         was killed or timed out); dead-lettered to {}",
-                        self.edge.dead_subject
-                    )),
+                    // (a crash, kill -9, an out-of-memory kill): it is not tried again, and
+                    // what reading it spooled goes now.
+                    Ok((job, _, _)) if delivered > tries => {
+                        if let Some(spool) = job.source.as_ref().and_then(|s| s.parent()) {
+                            let _ = std::fs::remove_dir_all(spool);
+                        }
+                        Err(format!(
+                            "no worker finished this job in {tries} deliveries (each one that took it stopped, \
+                             was killed or timed out); dead-lettered to {}",
+                            self.edge.dead_subject
+                        ))
+                    }
                     Ok(x) => Ok(x),
                     Err(e) if delivered > tries => Err(format!(
                         "no worker could read this message in {tries} deliveries ({e}); dead-lettered to {}",
@@ -791,7 +921,7 @@ impl<C: Codec> Receiver<C::T> for NatsReceiver<C> {
                     }
                     Err(e) => {
                         tracing::error!(stream = %self.edge.stream, "dead letter: {e}");
-                        self.dead_letter(&msg, &e).await;
+                        dead_letter(&self.nats.js, &self.edge.dead_subject, &msg, &e).await;
                         let name = Self::header(&msg, wire::NAME_HEADER).unwrap_or_else(|| "message".into());
                         let mut job = Job::generated(0, token(&super::message::shape_stem(Path::new(&name))));
                         job.arrived_as = Some(name);
@@ -804,8 +934,7 @@ impl<C: Codec> Receiver<C::T> for NatsReceiver<C> {
                     }
                 };
                 let spool = job.source.as_ref().and_then(|s| s.parent()).map(Path::to_path_buf);
-                let settle =
-                    hold(msg, self.nats.settings.ack_wait, ledger, spool, self.nats.runtime.handle());
+                let settle = hold(msg, &self.nats, self.edge.dead_subject.clone(), ledger, spool);
                 let mut job = job;
                 job.delivery = Some(Delivery::new(key, settle));
                 return Some(Envelope { job, body });
@@ -874,14 +1003,27 @@ impl Codec for FileCodec {
                 std::fs::write(&p, bytes).map_err(|e| format!("{}: {e}", p.display()))?;
                 Ok::<_, String>(p)
             };
-            let mesh = write(&body.mesh, nats.get_blob(&body.mesh.blob).await?)?;
-            let labels = match &body.labels {
-                Some(l) => Some(write(l, nats.get_blob(&l.blob).await?)?),
-                None => None,
+            let files = async {
+                let mesh = write(&body.mesh, nats.get_blob(&body.mesh.blob).await?)?;
+                let labels = match &body.labels {
+                    Some(l) => Some(write(l, nats.get_blob(&l.blob).await?)?),
+                    None => None,
+                };
+                let mut companions = Vec::new();
+                for c in &body.companions {
+                    companions.push(write(c, nats.get_blob(&c.blob).await?)?);
+                }
+                Ok::<_, String>((mesh, labels, companions))
             };
-            for c in &body.companions {
-                job.companions.push(write(c, nats.get_blob(&c.blob).await?)?);
-            }
+            let (mesh, labels, companions) = match files.await {
+                Ok(x) => x,
+                Err(e) => {
+                    // Nothing of a message that cannot be read stays in the spool.
+                    let _ = std::fs::remove_dir_all(&dir);
+                    return Err(e);
+                }
+            };
+            job.companions.extend(companions);
             job.source = Some(mesh.clone());
             job.labels_file = labels.clone();
             let spec = match labels {
@@ -892,12 +1034,6 @@ impl Codec for FileCodec {
             Ok(InputFile { path: mesh, labels: spec })
         })
     }
-}
-
-/// Dense maps: mesh, labels, spectrum, prediction and map go to the object store; the model is
-/// named by its version and fetched (once) from the store by a worker that lacks it.
-struct MapCodec {
-    models: Arc<ModelResolver>,
 }
 
 /// A mesh from the store, checked as [`crate::mesh::Mesh::new`] checks a mesh read from a file.
@@ -922,6 +1058,312 @@ async fn get_decoded<T: serde::de::DeserializeOwned>(
     wire::decode(format, &bytes)
 }
 
+/// Runs CPU work (a descriptor, a factorisation) off the async threads.
+async fn off_thread<R: Send + 'static>(f: impl FnOnce() -> R + Send + 'static) -> Result<R, String> {
+    tokio::task::spawn_blocking(f).await.map_err(|e| format!("a worker thread failed: {e}"))
+}
+
+async fn put_shape(nats: &Nats, s: &Shape) -> Result<WireShape, String> {
+    Ok(WireShape {
+        mesh: put_encoded(nats, wire::MESH, &*s.mesh).await?,
+        labels: match &s.labels {
+            Some(l) => Some(put_encoded(nats, wire::LABELS, &**l).await?),
+            None => None,
+        },
+    })
+}
+
+async fn get_shape(nats: &Nats, w: &WireShape) -> Result<Shape, String> {
+    let mesh = get_mesh(nats, &w.mesh).await?;
+    let n = mesh.n_vertices();
+    let labels: Option<Vec<Option<u32>>> = match &w.labels {
+        Some(l) => Some(get_decoded(nats, wire::LABELS, l).await?),
+        None => None,
+    };
+    if labels.as_ref().is_some_and(|l| l.len() != n) {
+        return Err(format!("labels for another mesh (not {n} vertices)"));
+    }
+    Ok(Shape { mesh: Arc::new(mesh), labels: labels.map(Arc::new) })
+}
+
+async fn put_partial(nats: &Nats, x: &PartialScan) -> Result<wire::WirePartial, String> {
+    Ok(wire::WirePartial {
+        scan: put_encoded(nats, wire::MESH, &*x.scan).await?,
+        part: put_encoded(nats, wire::MESH, &*x.part.mesh).await?,
+        kept: match &x.part.kept {
+            Some(k) => Some(put_encoded(nats, wire::KEPT, k).await?),
+            None => None,
+        },
+        components: x.part.components,
+        holes_closed: x.holes_closed,
+        scale_ratio: x.scale_ratio,
+    })
+}
+
+/// A partial scan whose part is `part` (the shape matched, already read when the keys agree).
+async fn get_partial(
+    nats: &Nats,
+    x: &wire::WirePartial,
+    part: Option<&Arc<crate::mesh::Mesh>>,
+) -> Result<PartialScan, String> {
+    let scan = Arc::new(get_mesh(nats, &x.scan).await?);
+    let part = match part {
+        Some(p) => p.clone(),
+        None => Arc::new(get_mesh(nats, &x.part).await?),
+    };
+    let kept: Option<Vec<usize>> = match &x.kept {
+        Some(k) => Some(get_decoded(nats, wire::KEPT, k).await?),
+        None => None,
+    };
+    let bad = kept
+        .as_ref()
+        .is_some_and(|k| k.len() != part.n_vertices() || k.iter().any(|&v| v >= scan.n_vertices()));
+    if bad {
+        return Err("a part whose vertices are not the scan's".into());
+    }
+    Ok(PartialScan {
+        scan,
+        part: crate::regularizer::ScanPart { mesh: part, kept, components: x.components },
+        holes_closed: x.holes_closed,
+        scale_ratio: x.scale_ratio,
+    })
+}
+
+async fn put_spectral(nats: &Nats, s: &SpectralShape) -> Result<WireSpectral, String> {
+    Ok(WireSpectral {
+        shape: put_shape(nats, &s.shape).await?,
+        spectrum: put_encoded(nats, wire::SPECTRUM, &*s.spectrum).await?,
+        partial: match &s.partial {
+            Some(x) => Some(put_partial(nats, x).await?),
+            None => None,
+        },
+    })
+}
+
+async fn get_spectral(nats: &Nats, w: &WireSpectral) -> Result<SpectralShape, String> {
+    let shape = get_shape(nats, &w.shape).await?;
+    let n = shape.mesh.n_vertices();
+    let spectrum: crate::spectral::Spectrum = get_decoded(nats, wire::SPECTRUM, &w.spectrum).await?;
+    let k = spectrum.eigenvalues.len();
+    if spectrum.n_vertices != n
+        || spectrum.mass.len() != n
+        || Some(spectrum.eigenvectors.len()) != n.checked_mul(k)
+    {
+        return Err(format!("a spectrum of another mesh (not {n} vertices)"));
+    }
+    let partial = match &w.partial {
+        Some(x) => {
+            let same = (x.part == w.shape.mesh).then_some(&shape.mesh);
+            Some(Arc::new(get_partial(nats, x, same).await?))
+        }
+        None => None,
+    };
+    Ok(SpectralShape { shape, spectrum: Arc::new(spectrum), partial })
+}
+
+async fn put_predicted(nats: &Nats, p: &PredictedShape) -> Result<WirePredicted, String> {
+    Ok(WirePredicted {
+        spectral: put_spectral(nats, &p.shape).await?,
+        model_version: p.model.version,
+        prediction: put_encoded(nats, wire::PREDICTION, &wire::WirePrediction::of(&p.prediction)).await?,
+    })
+}
+
+async fn get_prediction(nats: &Nats, blob: &BlobRef, n: usize) -> Result<crate::forest::Prediction, String> {
+    let prediction =
+        get_decoded::<wire::WirePrediction>(nats, wire::PREDICTION, blob).await?.into_prediction()?;
+    if prediction.n_vertices() != n {
+        return Err(format!("a prediction of another mesh (not {n} vertices)"));
+    }
+    Ok(prediction)
+}
+
+async fn get_predicted(
+    nats: &Nats,
+    models: &ModelResolver,
+    w: &WirePredicted,
+) -> Result<PredictedShape, String> {
+    let shape = get_spectral(nats, &w.spectral).await?;
+    let prediction = get_prediction(nats, &w.prediction, shape.mesh().n_vertices()).await?;
+    let model = models.version(w.model_version).await?;
+    Ok(PredictedShape { shape, model, prediction: Arc::new(prediction) })
+}
+
+/// Shapes (ingest → spectral): mesh and labels in the object store.
+struct ShapeCodec;
+
+impl Codec for ShapeCodec {
+    type T = Shape;
+    type Body = WireShape;
+    const FORMAT: &'static str = wire::SHAPE_MESSAGE;
+
+    fn make_body<'a>(nats: &'a Nats, _: &'a Job, s: &'a Shape) -> BoxFuture<'a, Result<WireShape, String>> {
+        Box::pin(put_shape(nats, s))
+    }
+
+    fn read_body<'a>(
+        &'a self,
+        nats: &'a Nats,
+        _: &'a mut Job,
+        b: WireShape,
+    ) -> BoxFuture<'a, Result<Shape, String>> {
+        Box::pin(async move { get_shape(nats, &b).await })
+    }
+}
+
+/// Shapes with spectra (spectral → descriptor, spectral → trainer).
+struct SpectralCodec;
+
+impl Codec for SpectralCodec {
+    type T = SpectralShape;
+    type Body = WireSpectral;
+    const FORMAT: &'static str = wire::SPECTRUM_MESSAGE;
+
+    fn make_body<'a>(
+        nats: &'a Nats,
+        _: &'a Job,
+        s: &'a SpectralShape,
+    ) -> BoxFuture<'a, Result<WireSpectral, String>> {
+        Box::pin(put_spectral(nats, s))
+    }
+
+    fn read_body<'a>(
+        &'a self,
+        nats: &'a Nats,
+        _: &'a mut Job,
+        b: WireSpectral,
+    ) -> BoxFuture<'a, Result<SpectralShape, String>> {
+        Box::pin(async move { get_spectral(nats, &b).await })
+    }
+}
+
+/// Described shapes (descriptor → forest): the spectral shape and the model version; the
+/// receiver makes the descriptor again (see [`wire::WireDescribed`]).
+struct DescribedCodec {
+    models: Arc<ModelResolver>,
+}
+
+impl Codec for DescribedCodec {
+    type T = DescribedShape;
+    type Body = WireDescribed;
+    const FORMAT: &'static str = wire::DESCRIPTOR_MESSAGE;
+
+    fn make_body<'a>(
+        nats: &'a Nats,
+        _: &'a Job,
+        d: &'a DescribedShape,
+    ) -> BoxFuture<'a, Result<WireDescribed, String>> {
+        Box::pin(async move {
+            Ok(WireDescribed {
+                spectral: put_spectral(nats, &d.shape).await?,
+                model_version: d.model.version,
+            })
+        })
+    }
+
+    fn read_body<'a>(
+        &'a self,
+        nats: &'a Nats,
+        _: &'a mut Job,
+        b: WireDescribed,
+    ) -> BoxFuture<'a, Result<DescribedShape, String>> {
+        Box::pin(async move {
+            let shape = get_spectral(nats, &b.spectral).await?;
+            let model = self.models.version(b.model_version).await?;
+            let (m, spectrum) = (model.clone(), shape.spectrum.clone());
+            let descriptor = off_thread(move || m.forest.descriptor(&spectrum))
+                .await?
+                .map_err(|e| format!("the descriptor of model v{}: {e}", model.version))?;
+            Ok(DescribedShape { shape, model, descriptor: Arc::new(descriptor) })
+        })
+    }
+}
+
+/// Predicted shapes (forest → matcher).
+struct PredictedCodec {
+    models: Arc<ModelResolver>,
+}
+
+impl Codec for PredictedCodec {
+    type T = PredictedShape;
+    type Body = WirePredicted;
+    const FORMAT: &'static str = wire::PREDICTION_MESSAGE;
+
+    fn make_body<'a>(
+        nats: &'a Nats,
+        _: &'a Job,
+        p: &'a PredictedShape,
+    ) -> BoxFuture<'a, Result<WirePredicted, String>> {
+        Box::pin(put_predicted(nats, p))
+    }
+
+    fn read_body<'a>(
+        &'a self,
+        nats: &'a Nats,
+        _: &'a mut Job,
+        b: WirePredicted,
+    ) -> BoxFuture<'a, Result<PredictedShape, String>> {
+        Box::pin(async move { get_predicted(nats, &self.models, &b).await })
+    }
+}
+
+/// Sparsely matched shapes (matcher → fmap): the prediction, the matches and the heat
+/// parameters; the receiver factorises the heat method again from the mesh.
+struct SparseCodec {
+    models: Arc<ModelResolver>,
+}
+
+impl Codec for SparseCodec {
+    type T = SparselyMatched;
+    type Body = WireSparselyMatched;
+    const FORMAT: &'static str = wire::MATCHES_MESSAGE;
+
+    fn make_body<'a>(
+        nats: &'a Nats,
+        _: &'a Job,
+        s: &'a SparselyMatched,
+    ) -> BoxFuture<'a, Result<WireSparselyMatched, String>> {
+        Box::pin(async move {
+            let (heat_time_factor, heat_boundary) = wire::heat_to_wire(&s.heat);
+            Ok(WireSparselyMatched {
+                predicted: put_predicted(nats, &s.predicted).await?,
+                sparse: put_encoded(nats, wire::SPARSE_MATCHES, &wire::WireSparse::of(&s.sparse)).await?,
+                heat_time_factor,
+                heat_boundary,
+            })
+        })
+    }
+
+    fn read_body<'a>(
+        &'a self,
+        nats: &'a Nats,
+        _: &'a mut Job,
+        b: WireSparselyMatched,
+    ) -> BoxFuture<'a, Result<SparselyMatched, String>> {
+        Box::pin(async move {
+            let heat = wire::heat_from_wire(b.heat_time_factor, &b.heat_boundary)?;
+            let predicted = get_predicted(nats, &self.models, &b.predicted).await?;
+            let n_ref = predicted.model.reference.mesh.n_vertices();
+            let sparse = get_decoded::<wire::WireSparse>(nats, wire::SPARSE_MATCHES, &b.sparse)
+                .await?
+                .into_sparse(predicted.mesh().n_vertices(), n_ref)?;
+            let (mesh, spectrum) = (predicted.mesh().clone(), predicted.spectrum().clone());
+            let prepared = off_thread(move || crate::regularizer::PreparedShape::new(mesh, spectrum, heat))
+                .await?
+                .map_err(|e| format!("cannot prepare the shape for geodesics again: {e}"))?;
+            Ok(SparselyMatched { predicted, prepared: Arc::new(prepared), heat, sparse: Arc::new(sparse) })
+        })
+    }
+}
+
+/// Dense maps (fmap → the sinks): mesh, labels, prediction and map go to the object store, the
+/// model is named by its version and fetched (once) from the store by a worker that lacks it.
+/// The spectrum does not travel: its consumers, the sinks, never read it, so a map read back
+/// carries a spectrum without eigenpairs (only its area is kept).
+struct MapCodec {
+    models: Arc<ModelResolver>,
+}
+
 impl Codec for MapCodec {
     type T = MatchedShape;
     type Body = WireMatched;
@@ -934,29 +1376,17 @@ impl Codec for MapCodec {
     ) -> BoxFuture<'a, Result<WireMatched, String>> {
         Box::pin(async move {
             let p = &m.predicted;
+            let shape = put_shape(nats, &p.shape.shape).await?;
             Ok(WireMatched {
-                mesh: put_encoded(nats, wire::MESH, &*p.shape.shape.mesh).await?,
-                labels: match &p.shape.shape.labels {
-                    Some(l) => Some(put_encoded(nats, wire::LABELS, &**l).await?),
-                    None => None,
-                },
-                spectrum: put_encoded(nats, wire::SPECTRUM, &*p.shape.spectrum).await?,
+                mesh: shape.mesh,
+                labels: shape.labels,
+                spectrum_area: p.shape.spectrum.area,
                 prediction: put_encoded(nats, wire::PREDICTION, &wire::WirePrediction::of(&p.prediction))
                     .await?,
                 dense: put_encoded(nats, wire::DENSE_MAP, &wire::WireDense::of(&m.dense)).await?,
                 model_version: p.model.version,
                 partial: match &p.shape.partial {
-                    Some(x) => Some(wire::WirePartial {
-                        scan: put_encoded(nats, wire::MESH, &*x.scan).await?,
-                        part: put_encoded(nats, wire::MESH, &*x.part.mesh).await?,
-                        kept: match &x.part.kept {
-                            Some(k) => Some(put_encoded(nats, wire::KEPT, k).await?),
-                            None => None,
-                        },
-                        components: x.part.components,
-                        holes_closed: x.holes_closed,
-                        scale_ratio: x.scale_ratio,
-                    }),
+                    Some(x) => Some(put_partial(nats, x).await?),
                     None => None,
                 },
             })
@@ -970,53 +1400,18 @@ impl Codec for MapCodec {
         b: WireMatched,
     ) -> BoxFuture<'a, Result<MatchedShape, String>> {
         Box::pin(async move {
-            let mesh = get_mesh(nats, &b.mesh).await?;
-            let n = mesh.n_vertices();
+            let shape =
+                get_shape(nats, &WireShape { mesh: b.mesh.clone(), labels: b.labels.clone() }).await?;
+            let n = shape.mesh.n_vertices();
             let partial = match &b.partial {
                 Some(x) => {
-                    let scan = Arc::new(get_mesh(nats, &x.scan).await?);
-                    let part = Arc::new(get_mesh(nats, &x.part).await?);
-                    let kept: Option<Vec<usize>> = match &x.kept {
-                        Some(k) => Some(get_decoded(nats, wire::KEPT, k).await?),
-                        None => None,
-                    };
-                    let bad = kept.as_ref().is_some_and(|k| {
-                        k.len() != part.n_vertices() || k.iter().any(|&v| v >= scan.n_vertices())
-                    });
-                    if bad {
-                        return Err("a part whose vertices are not the scan's".into());
-                    }
-                    Some(Arc::new(PartialScan {
-                        scan,
-                        part: crate::regularizer::ScanPart { mesh: part, kept, components: x.components },
-                        holes_closed: x.holes_closed,
-                        scale_ratio: x.scale_ratio,
-                    }))
+                    let same = (x.part == b.mesh).then_some(&shape.mesh);
+                    Some(Arc::new(get_partial(nats, x, same).await?))
                 }
                 None => None,
             };
             let n_scan = partial.as_ref().map_or(n, |p| p.scan.n_vertices());
-            let labels: Option<Vec<Option<u32>>> = match &b.labels {
-                Some(l) => Some(get_decoded(nats, wire::LABELS, l).await?),
-                None => None,
-            };
-            if labels.as_ref().is_some_and(|l| l.len() != n) {
-                return Err(format!("labels for another mesh (not {n} vertices)"));
-            }
-            let spectrum: crate::spectral::Spectrum = get_decoded(nats, wire::SPECTRUM, &b.spectrum).await?;
-            let k = spectrum.eigenvalues.len();
-            if spectrum.n_vertices != n
-                || spectrum.mass.len() != n
-                || Some(spectrum.eigenvectors.len()) != n.checked_mul(k)
-            {
-                return Err(format!("a spectrum of another mesh (not {n} vertices)"));
-            }
-            let prediction = get_decoded::<wire::WirePrediction>(nats, wire::PREDICTION, &b.prediction)
-                .await?
-                .into_prediction()?;
-            if prediction.n_vertices() != n {
-                return Err(format!("a prediction of another mesh (not {n} vertices)"));
-            }
+            let prediction = get_prediction(nats, &b.prediction, n).await?;
             let dense =
                 get_decoded::<wire::WireDense>(nats, wire::DENSE_MAP, &b.dense).await?.into_dense(n_scan)?;
             let model = self.models.version(b.model_version).await?;
@@ -1026,13 +1421,16 @@ impl Codec for MapCodec {
                     model.version
                 ));
             }
+            let spectrum = crate::spectral::Spectrum {
+                eigenvalues: Vec::new(),
+                eigenvectors: Vec::new(),
+                n_vertices: n,
+                mass: Vec::new(),
+                area: b.spectrum_area,
+            };
             Ok(MatchedShape {
                 predicted: PredictedShape {
-                    shape: SpectralShape {
-                        shape: Shape { mesh: Arc::new(mesh), labels: labels.map(Arc::new) },
-                        spectrum: Arc::new(spectrum),
-                        partial,
-                    },
+                    shape: SpectralShape { shape, spectrum: Arc::new(spectrum), partial },
                     model,
                     prediction: Arc::new(prediction),
                 },

@@ -15,13 +15,19 @@ use sha2::{Digest, Sha256};
 
 use crate::{
     forest::Prediction,
+    geodesic::{HeatBoundary, HeatParams},
+    matching::{GameMatching, WeightedMatch},
     mesh::Mesh,
-    regularizer::{DenseMap, RegularizerTimings, VertexMatch},
+    regularizer::{DenseMap, RegularizerTimings, SparseMatches, VertexMatch},
     spectral::Spectrum,
 };
 
 /// The version of every format below. A reader accepts exactly the versions it knows.
-pub const FORMAT_VERSION: u32 = 1;
+///
+/// Version 2: every edge of the graph travels (shape, spectrum, descriptor, prediction and
+/// sparse-match messages), and the map message no longer carries the spectrum (its consumers,
+/// the sinks, never read it).
+pub const FORMAT_VERSION: u32 = 2;
 
 /// Header naming a message's format (`shapeforest.file`, `shapeforest.map`).
 pub const FORMAT_HEADER: &str = "Shapeforest-Format";
@@ -158,15 +164,103 @@ pub struct WireInput {
     pub companions: Vec<WireFileRef>,
 }
 
-/// The payload of a `map` edge: a matched scan, every part in the object store.
+/// The payload of a `shape` edge: a mesh and, for a labelled shape, its labels.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WireShape {
+    /// [`Mesh`], format `shapeforest.mesh`.
+    pub mesh: BlobRef,
+    /// Per-vertex labels, format `shapeforest.labels` (labelled shapes only).
+    pub labels: Option<BlobRef>,
+}
+
+/// The payload of a `spectrum` edge: the shape, its spectrum and, for a scan matched on a
+/// part of itself, how the part was made.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WireSpectral {
+    /// The shape matched (for a partial scan: the part).
+    pub shape: WireShape,
+    /// [`Spectrum`], format `shapeforest.spectrum`.
+    pub spectrum: BlobRef,
+    /// For a scan matched on a part of itself: the whole scan and how the part was made.
+    pub partial: Option<WirePartial>,
+}
+
+/// The payload of a `descriptor` edge: the spectral shape and the model version the
+/// descriptor is made with. The descriptor itself does not travel: it is a pure function of
+/// the spectrum and the model (`ForestDescriptor` keeps its arrays private), so the receiver
+/// makes it again from the two (the descriptor stage takes ~0.05 s at 20K vertices).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WireDescribed {
+    /// The shape and its spectrum.
+    pub spectral: WireSpectral,
+    /// The model version (its bundle is in the store, see `model_sync`).
+    pub model_version: u64,
+}
+
+/// The payload of a `prediction` edge.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WirePredicted {
+    /// The shape and its spectrum.
+    pub spectral: WireSpectral,
+    /// The model version the prediction was made with.
+    pub model_version: u64,
+    /// [`Prediction`], format `shapeforest.prediction`.
+    pub prediction: BlobRef,
+}
+
+/// The payload of a `matches` edge: the prediction, the sparse matches and the heat-method
+/// parameters the matcher prepared the shape with (the factorisation itself does not travel:
+/// the receiver factorises again from the mesh).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct WireSparselyMatched {
+    /// The prediction it came from.
+    pub predicted: WirePredicted,
+    /// [`SparseMatches`], format `shapeforest.sparse-matches`.
+    pub sparse: BlobRef,
+    /// Heat-method time factor.
+    pub heat_time_factor: f64,
+    /// Heat-method boundary condition: `neumann`, `dirichlet` or `average`.
+    pub heat_boundary: String,
+}
+
+/// The heat parameters as they travel.
+pub fn heat_to_wire(h: &HeatParams) -> (f64, String) {
+    let b = match h.boundary {
+        HeatBoundary::Neumann => "neumann",
+        HeatBoundary::Dirichlet => "dirichlet",
+        HeatBoundary::Average => "average",
+    };
+    (h.time_factor, b.to_string())
+}
+
+/// The heat parameters back, refusing an unknown boundary condition.
+pub fn heat_from_wire(time_factor: f64, boundary: &str) -> Result<HeatParams, String> {
+    let boundary = match boundary {
+        "neumann" => HeatBoundary::Neumann,
+        "dirichlet" => HeatBoundary::Dirichlet,
+        "average" => HeatBoundary::Average,
+        other => {
+            return Err(format!("unknown heat boundary condition {:?}", crate::limits::escape_name(other)))
+        }
+    };
+    if !(time_factor.is_finite() && time_factor > 0.0) {
+        return Err(format!("heat time factor {time_factor} is not a positive number"));
+    }
+    Ok(HeatParams { time_factor, boundary })
+}
+
+/// The payload of a `map` edge: a matched scan, every part in the object store. The spectrum
+/// does not travel (the map's consumers, the sinks, never read it; it was ~5× the rest of the
+/// objects at 20K vertices): a map read back carries a spectrum without eigenpairs (see
+/// `MapCodec`).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct WireMatched {
     /// [`Mesh`], format `shapeforest.mesh`.
     pub mesh: BlobRef,
     /// Per-vertex labels, format `shapeforest.labels` (labelled shapes only).
     pub labels: Option<BlobRef>,
-    /// [`Spectrum`], format `shapeforest.spectrum`.
-    pub spectrum: BlobRef,
+    /// The area of the mesh the spectrum was computed on (kept with the empty spectrum).
+    pub spectrum_area: f64,
     /// [`Prediction`], format `shapeforest.prediction`.
     pub prediction: BlobRef,
     /// [`DenseMap`], format `shapeforest.dense-map`.
@@ -221,6 +315,18 @@ pub const MODEL_BUNDLE: &str = "shapeforest.model-bundle";
 pub const FILE_MESSAGE: &str = "shapeforest.file";
 /// Format name of a `map` message.
 pub const MAP_MESSAGE: &str = "shapeforest.map";
+/// Format name of a `shape` message.
+pub const SHAPE_MESSAGE: &str = "shapeforest.shape";
+/// Format name of a `spectrum` message.
+pub const SPECTRUM_MESSAGE: &str = "shapeforest.spectral-shape";
+/// Format name of a `descriptor` message.
+pub const DESCRIPTOR_MESSAGE: &str = "shapeforest.described-shape";
+/// Format name of a `prediction` message.
+pub const PREDICTION_MESSAGE: &str = "shapeforest.predicted-shape";
+/// Format name of a `matches` message.
+pub const MATCHES_MESSAGE: &str = "shapeforest.sparsely-matched";
+/// Format name of a sparse-matches object.
+pub const SPARSE_MATCHES: &str = "shapeforest.sparse-matches";
 
 /// A prediction's arrays (it keeps them private; [`Prediction::from_parts`] checks them again
 /// when read back).
@@ -341,6 +447,82 @@ impl WireDense {
             forest_map: self.forest_map,
             fmap_predicted: self.fmap_predicted.into_mat()?,
             fmap: self.fmap.into_mat()?,
+            matches: self.matches,
+            orientation_score: self.orientation_score,
+            mirror_rejected: self.mirror_rejected,
+            timings: self.timings,
+        })
+    }
+}
+
+/// Every field of [`SparseMatches`] (the distance fields as matrices, the game's matches).
+#[derive(Serialize, Deserialize)]
+pub struct WireSparse {
+    samples: Vec<usize>,
+    ref_points: Vec<usize>,
+    test_fields: WireMat,
+    ref_fields: WireMat,
+    game_matches: Vec<(usize, usize, f64)>,
+    game_iterations: usize,
+    game_converged: bool,
+    game_payoff: f64,
+    matches: Vec<VertexMatch>,
+    orientation_score: f64,
+    mirror_rejected: bool,
+    timings: RegularizerTimings,
+}
+
+impl WireSparse {
+    /// The fields of `s`.
+    pub fn of(s: &SparseMatches) -> Self {
+        Self {
+            samples: s.samples.clone(),
+            ref_points: s.ref_points.clone(),
+            test_fields: WireMat::of(&s.test_fields),
+            ref_fields: WireMat::of(&s.ref_fields),
+            game_matches: s.game.matches.iter().map(|m| (m.test, m.reference, m.weight)).collect(),
+            game_iterations: s.game.iterations,
+            game_converged: s.game.converged,
+            game_payoff: s.game.payoff,
+            matches: s.matches.clone(),
+            orientation_score: s.orientation_score,
+            mirror_rejected: s.mirror_rejected,
+            timings: s.timings,
+        }
+    }
+
+    /// The sparse matches, checked against the scan's and the reference's vertex counts.
+    pub fn into_sparse(self, n_test: usize, n_ref: usize) -> Result<SparseMatches, String> {
+        let test_fields = self.test_fields.into_mat()?;
+        let ref_fields = self.ref_fields.into_mat()?;
+        let bad = self.samples.iter().any(|&v| v >= n_test)
+            || self.ref_points.iter().any(|&v| v >= n_ref)
+            || self.matches.iter().any(|m| m.test >= n_test || m.reference >= n_ref)
+            || self
+                .game_matches
+                .iter()
+                .any(|&(t, r, _)| t >= self.samples.len() || r >= self.ref_points.len())
+            || (test_fields.ncols() > 0 && test_fields.nrows() != n_test)
+            || (ref_fields.ncols() > 0 && ref_fields.nrows() != n_ref)
+            || test_fields.ncols() != ref_fields.ncols();
+        if bad {
+            return Err(format!("sparse matches of other shapes (not {n_test} and {n_ref} vertices)"));
+        }
+        Ok(SparseMatches {
+            samples: self.samples,
+            ref_points: self.ref_points,
+            test_fields,
+            ref_fields,
+            game: GameMatching {
+                matches: self
+                    .game_matches
+                    .into_iter()
+                    .map(|(test, reference, weight)| WeightedMatch { test, reference, weight })
+                    .collect(),
+                iterations: self.game_iterations,
+                converged: self.game_converged,
+                payoff: self.game_payoff,
+            },
             matches: self.matches,
             orientation_score: self.orientation_score,
             mirror_rejected: self.mirror_rejected,

@@ -84,9 +84,33 @@ impl MatchSink {
         &self.written
     }
 
+    /// Where a keyed job's result is recorded: `FOLDER/.keys/KEY` holds the name of its result
+    /// folder, which holds the key in `.key` (see [`MatchSink::written_before`]).
+    fn key_entry(&self, key: &str) -> PathBuf {
+        let safe: String = key
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' })
+            .collect();
+        self.config.folder.join(".keys").join(safe)
+    }
+
+    /// The result folder of a keyed job written before (a job delivered again by a durable
+    /// queue after its result was written but before that was acknowledged).
+    fn written_before(&self, key: &str) -> Option<PathBuf> {
+        let name = fs::read_to_string(self.key_entry(key)).ok()?;
+        let dir = self.config.folder.join(name.trim());
+        let theirs = fs::read_to_string(dir.join(".key")).ok()?;
+        (theirs == key).then_some(dir)
+    }
+
     /// Writes a result, and on failure leaves nothing behind: the partial folder is removed and
-    /// a claimed input that had moved into it goes back to `.inflight/`.
+    /// a claimed input that had moved into it goes back to `.inflight/`. A job with a key (a
+    /// durable queue's) whose result is already written is not written again.
     fn write(&mut self, job: &Job, m: &MatchedShape) -> Result<PathBuf, Error> {
+        if let Some(dir) = job.key.as_deref().and_then(|k| self.written_before(k)) {
+            tracing::info!(job = job.id, shape = %escape_name(&job.name), "already written as {}", dir.display());
+            return Ok(dir);
+        }
         let partial = self.config.folder.join(format!(".partial-{}-{}", job.name, job.id));
         let r = self.write_parts(job, m, &partial);
         if r.is_err() {
@@ -183,6 +207,20 @@ impl MatchSink {
             }
         }
         let target = unique_path(root, name);
+        if let Some(key) = &job.key {
+            // The key goes in first: a crash after the rename below leaves a result that a
+            // redelivery finds (and does not write twice); one before it, an entry naming a
+            // folder that is not there (so the result is written then).
+            let marker = partial.join(".key");
+            fs::write(&marker, key).at(&marker)?;
+            let entry = self.key_entry(key);
+            if let Some(d) = entry.parent() {
+                fs::create_dir_all(d).at(d)?;
+            }
+            let target_name =
+                target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            crate::pipeline::atomic_write(&entry, target_name.as_bytes()).at(&entry)?;
+        }
         fs::rename(&partial, &target).at(&target)?;
         if let Some(arrived) = &job.arrived_as {
             self.data.clear_deferral(InputKind::Scan, arrived);

@@ -139,6 +139,11 @@ impl Stage for MatcherStage {
             &self.params,
         )
         .map_err(|e| internal("matcher", job, e))?;
-        Ok(SparselyMatched { predicted: p, prepared: Arc::new(prepared), sparse: Arc::new(sparse) })
+        Ok(SparselyMatched {
+            predicted: p,
+            prepared: Arc::new(prepared),
+            heat: self.heat,
+            sparse: Arc::new(sparse),
+        })
     }
 }
