@@ -207,6 +207,9 @@ fn a_forged_model_is_refused_by_the_limits_and_a_crashing_input_is_quarantined()
 
 /// Re-encodes a model with its energy grid's level count replaced, the checksum recomputed.
 fn forge_levels(bytes: &[u8], levels: u64) -> Vec<u8> {
+    // Format version 2 (still read), whose MessagePack payload maps onto JSON values (version 3
+    // holds the trees as byte strings).
+    let bytes = &RandomForest::from_bytes(bytes).unwrap().to_bytes_version(2).unwrap();
     // Prefix: magic (8), version (4), payload length (8), checksum (8).
     let payload = &bytes[28..];
     let mut v: serde_json::Value = rmp_serde::from_slice(payload).unwrap();
