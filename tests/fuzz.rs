@@ -24,6 +24,9 @@ use shapeforest::{
 /// A small trained model, its file bytes, and the spectrum of its training shape.
 struct Fixture {
     model: Vec<u8>,
+    /// The same model in format version 2 (still read), whose MessagePack payload maps onto
+    /// JSON values for the structured edits (version 3 holds the trees as byte strings).
+    model_v2: Vec<u8>,
     spectrum: Arc<Spectrum>,
     meshes: Vec<(MeshFormat, Vec<u8>)>,
 }
@@ -47,7 +50,12 @@ fn fixture() -> &'static Fixture {
             write_mesh(&p, mesh).unwrap();
             meshes.push((format, std::fs::read(&p).unwrap()));
         }
-        Fixture { model: forest.to_bytes().unwrap(), spectrum, meshes }
+        Fixture {
+            model: forest.to_bytes().unwrap(),
+            model_v2: forest.to_bytes_version(2).unwrap(),
+            spectrum,
+            meshes,
+        }
     })
 }
 
@@ -183,7 +191,9 @@ proptest! {
         // Raw edits of the payload.
         load_and_use(&with_checksum(prefix, &mutate(payload, &e)));
         // A structured edit: one number of the decoded payload set to a nasty value, mirrored
-        // into the forest's copy of a header field when asked (header and forest must agree).
+        // into the forest's copy of a header field when asked (header and forest must agree),
+        // on the version-2 encoding.
+        let (prefix, payload) = f.model_v2.split_at(28);
         let mut v: serde_json::Value = rmp_serde::from_slice(payload).unwrap();
         let mut paths = Vec::new();
         numeric_paths(&v, &mut Vec::new(), &mut paths);
