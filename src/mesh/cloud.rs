@@ -308,9 +308,9 @@ fn push_edges(
     }
 }
 
-/// An `f64` ordered by `total_cmp`, for the heap.
+/// An `f64` ordered by `total_cmp`, for binary heaps (here and in the regulariser's cell balls).
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct OrdF64(f64);
+pub(crate) struct OrdF64(pub(crate) f64);
 impl Eq for OrdF64 {}
 impl PartialOrd for OrdF64 {
     fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {

@@ -52,6 +52,7 @@ mod topology;
 mod tosca;
 mod xyz;
 
+pub(crate) use cloud::OrdF64;
 pub use cloud::{
     local_triangulation, point_cloud_mesh, LocalTriangulation, DEFAULT_NEIGHBOURS, MIN_POINTS,
     POINT_CLOUD_COVER,

@@ -8,7 +8,7 @@ use super::{PreparedShape, RegularizerError as Error, ZoomOutParams};
 use crate::{
     fmap::{point_to_point_in_cells, zoomout_on_samples, CellBalls, SampleCells, ZoomOutSchedule},
     geodesic::{dijkstra_nearest_source, farthest_point_sampling_euclidean},
-    mesh::Mesh,
+    mesh::{Mesh, OrdF64},
 };
 
 /// `n` Euclidean farthest-point samples of `mesh` (every vertex when it has at most `n`) and
@@ -85,24 +85,6 @@ pub fn cell_balls(mesh: &Mesh, cells: &SampleCells, radius: f64) -> CellBalls {
         offsets.push(out.len());
     }
     CellBalls { offsets, cells: out }
-}
-
-/// A total order on the (finite) distances of [`cell_balls`]'s queue.
-#[derive(Clone, Copy, PartialEq)]
-struct OrdF64(f64);
-
-impl Eq for OrdF64 {}
-
-impl PartialOrd for OrdF64 {
-    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
-        Some(self.cmp(other))
-    }
-}
-
-impl Ord for OrdF64 {
-    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
-        self.0.total_cmp(&other.0)
-    }
 }
 
 /// How far `map` is from an isometry on `samples` of the test shape: the mean, over pairs of
