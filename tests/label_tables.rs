@@ -127,3 +127,64 @@ fn a_reference_label_map_that_lacks_labels_is_refused() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("other.vts") && err.contains("shape0"), "{err}");
 }
+
+/// A `.sym.vts` beside the reference's `.vts` (row k: the vertex at the mirror image of row k's,
+/// as remeshed TOSCA and FAUST ship them) gives the model its reference's left/right symmetry,
+/// which `match` uses to repair mirrored maps; one with the wrong number of rows is refused,
+/// naming the file.
+#[test]
+fn a_sym_vts_beside_the_reference_labels_is_stored_and_used() {
+    let shapes = shuffled_family(7);
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for (i, s) in shapes.iter().enumerate() {
+        write_shape(d, &format!("shape{i}"), s);
+    }
+    // The mirror rows: each row's vertex reflected through the plane x = mean x, snapped to the
+    // nearest vertex.
+    let m = &shapes[0].mesh;
+    let cx = m.vertices.iter().map(|p| p[0]).sum::<f64>() / m.n_vertices() as f64;
+    let mirror_of = |v: usize| {
+        let p = m.vertices[v];
+        let q = [2.0 * cx - p[0], p[1], p[2]];
+        (0..m.n_vertices())
+            .min_by(|&a, &b| {
+                let d = |u: usize| (0..3).map(|c| (m.vertices[u][c] - q[c]).powi(2)).sum::<f64>();
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap()
+    };
+    let mirrored: Vec<usize> = shapes[0].truth.iter().map(|&v| mirror_of(v)).collect();
+    let train = |out: &Path| {
+        let mut c = bin();
+        c.arg("train");
+        for i in 0..5 {
+            c.arg("--shape").arg(d.join(format!("shape{i}.off")));
+            c.arg("--labels").arg(d.join(format!("shape{i}.vts")));
+        }
+        c.args(["--trees", "8", "-k", "50", "--out"]).arg(out);
+        c.output().unwrap()
+    };
+    // Too few rows: refused, naming the file.
+    std::fs::write(d.join("shape0.sym.vts"), vts(&mirrored[..10])).unwrap();
+    let r = train(&d.join("bad.sfm"));
+    assert!(!r.status.success(), "a .sym.vts with the wrong row count must be refused");
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("shape0.sym.vts") && err.contains("rows"), "{err}");
+
+    std::fs::write(d.join("shape0.sym.vts"), vts(&mirrored)).unwrap();
+    let model = d.join("m.sfm");
+    let r = train(&model);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("symmetry from its .sym.vts"));
+    let out = d.join("out");
+    let mut c = bin();
+    c.args(["match", "--model"]).arg(&model).arg("--reference").arg(d.join("shape0.off"));
+    c.arg("--mesh").arg(d.join("shape5.off")).arg("--out").arg(&out);
+    run_ok(&mut c);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("shape5.report.json")).unwrap()).unwrap();
+    assert_eq!(report["reference_symmetry"], serde_json::Value::Bool(true), "{report}");
+    let acc = accuracy(&read_map(&out.join("shape5.map.txt")), &shapes[5], &shapes[0]);
+    assert!(acc >= 0.85, "map with the symmetry repair on: {:.1} % within 0.05", 100.0 * acc);
+}
