@@ -330,14 +330,16 @@ pub fn run(args: TrainArgs) -> Result<()> {
     let t0 = Instant::now();
     let bar = Arc::new(progress(args.trees as u64, "trees"));
     let b = bar.clone();
-    let forest = params.fit_with_progress(None, &set, &move |_| b.inc(1))?;
+    let (n_shapes, n_samples) = (set.shapes().len(), set.n_samples());
+    // By value: the training spectra are freed once the trees' descriptor tables are built.
+    let forest = params.fit_owned(set, &move |_| b.inc(1))?;
     bar.finish_and_clear();
     let forest = forest.with_reference(reference)?;
     eprintln!(
         "{} trees on {} shapes ({} samples, {} labels) in {:.1} s; mean leaf support {:.2}",
         forest.n_trees(),
-        set.shapes().len(),
-        set.n_samples(),
+        n_shapes,
+        n_samples,
         n_labels,
         t0.elapsed().as_secs_f64(),
         forest.mean_leaf_support()
