@@ -263,7 +263,22 @@ fn model_reference(shapes: &[Labelled], n_labels: usize, name: Option<&str>) -> 
     Ok(ModelReference::new(&r.name, &r.mesh, &table))
 }
 
+/// Serve every allocation of 1 MiB or more from its own mapping, returned to the system when
+/// freed. glibc's default raises this threshold as large blocks are freed, so the spectra's
+/// 40–100 MB work buffers end up on the heap arenas and stay resident after each solve; with
+/// it fixed, `train` on 6 × 52K vertices peaks at ~0.78 GB instead of ~0.92 GB (and grows
+/// its trees in ~0.4 GB instead of ~0.5 GB), with the same model. Only `train` sets it.
+fn release_large_blocks() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only changes allocator tuning; any value is valid for M_MMAP_THRESHOLD
+    // up to 32 MiB on 64-bit glibc.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 20);
+    }
+}
+
 pub fn run(args: TrainArgs) -> Result<()> {
+    release_large_blocks();
     let params = RandomForest::params()
         .n_trees(args.trees)
         .max_depth(args.depth)
