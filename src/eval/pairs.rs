@@ -302,36 +302,32 @@ pub fn run_pairs(
     let reference = params.training[0];
     let table = &shapes[reference].truth;
     let heat = params.regularizer.heat;
-    let ref_prepared = PreparedShape::new(shapes[reference].mesh.clone(), spectra[&reference].clone(), heat)?;
+    // ZoomOut beyond the descriptors' eigenpairs: every shape mapped gets a spectrum of as many
+    // eigenpairs as the largest ZoomOut basis asks for (its first K are the descriptors' own).
+    let zoomout_k = [params.regularizer.zoomout.map(|z| z.k_final), Some(params.zoomout.k_final)]
+        .into_iter()
+        .flatten()
+        .max()
+        .unwrap_or(0);
+    let zoomout_params = SpectrumParams { k: zoomout_k, ..params.spectrum.clone() };
+    let prepare = |s: usize| -> Result<PreparedShape, EvalError> {
+        let p = PreparedShape::new(shapes[s].mesh.clone(), spectra[&s].clone(), heat)?;
+        if zoomout_k <= params.spectrum.k {
+            return Ok(p);
+        }
+        let sp = spectrum_cached(&shapes[s].mesh, &zoomout_params, cache.as_ref())?;
+        Ok(p.with_zoomout_spectrum(Arc::new(sp))?)
+    };
+    let ref_prepared = prepare(reference)?;
     let mut prepared: HashMap<usize, (PreparedShape, crate::forest::Prediction, DenseMap)> = HashMap::new();
     for (i, &s) in tested.iter().enumerate() {
-        let p = PreparedShape::new(shapes[s].mesh.clone(), spectra[&s].clone(), heat)?;
+        let p = prepare(s)?;
         let prediction = forest.predict(&p.spectrum)?;
         let dense = regularize(&p, &ref_prepared, &prediction, Some(table), &params.regularizer)?;
         prepared.insert(s, (p, prediction, dense));
         emit(PairsEvent::ToReference { done: i + 1, total: tested.len(), name: &shapes[s].name });
     }
     timings.to_reference_s = t0.elapsed().as_secs_f64();
-
-    // ZoomOut of the pair maps beyond the descriptors' eigenpairs: the tested shapes again, with
-    // a spectrum of `zoomout.k_final` eigenpairs (its first K are the descriptors' own).
-    let extended_k = params.zoomout.k_final;
-    let mut extended: HashMap<usize, PreparedShape> = HashMap::new();
-    if extended_k > params.spectrum.k {
-        let t0 = Instant::now();
-        let sp_params = SpectrumParams { k: extended_k, ..params.spectrum.clone() };
-        for &s in &tested {
-            let sp = spectrum_cached(&shapes[s].mesh, &sp_params, cache.as_ref())?;
-            extended.insert(s, PreparedShape::new(shapes[s].mesh.clone(), Arc::new(sp), heat)?);
-        }
-        timings.spectra_s += t0.elapsed().as_secs_f64();
-    }
-    // With extended spectra the pair map's ZoomOut runs on them, after the pair step.
-    let pair_regularizer = if extended.is_empty() {
-        params.regularizer.clone()
-    } else {
-        RegularizerParams { zoomout: None, ..params.regularizer.clone() }
-    };
 
     // The maps of every pair, grouped by target so that each target's fields are made once.
     emit(PairsEvent::Stage("pairs"));
@@ -349,21 +345,17 @@ pub fn run_pairs(
             &a_to_ref.map,
             &b_to_ref.map,
             Some(table),
-            &pair_regularizer,
+            &params.regularizer,
             &params.pair,
         )?;
         let pair_s = t0.elapsed().as_secs_f64();
         timings.pairs_s += pair_s;
         // With the regulariser's ZoomOut on, the pair map is already refined (or was kept).
-        let zoomed = match (pair.grown_map.take(), &pair_regularizer.zoomout) {
+        let zoomed = match (pair.grown_map.take(), &params.regularizer.zoomout) {
             (Some(grown), _) => std::mem::replace(&mut pair.map, grown),
             (None, Some(_)) => pair.map.clone(),
             (None, None) => {
-                let (za, zb) = match (extended.get(&a), extended.get(&b)) {
-                    (Some(za), Some(zb)) => (za, zb),
-                    _ => (pa, pb),
-                };
-                refine_zoomout(za, zb, &pair.map, &params.zoomout)?.unwrap_or_else(|| pair.map.clone())
+                refine_zoomout(pa, pb, &pair.map, &params.zoomout)?.unwrap_or_else(|| pair.map.clone())
             }
         };
         maps.push((pair.map, composed, zoomed, pair_s));

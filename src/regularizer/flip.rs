@@ -212,3 +212,74 @@ pub fn symmetry_from_pairs(mesh: &Mesh, pairs: &[(usize, usize)]) -> Result<Vec<
     let part_map: Vec<usize> = kept.iter().map(|&v| mirror[v]).collect();
     Ok(crate::mesh::extend_map_by_nearest(mesh, &kept, &part_map))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::icosphere;
+
+    /// An ellipsoid symmetric about x = 0, and its mirror self-map (nearest vertex of each
+    /// vertex's reflection).
+    fn ellipsoid_and_mirror() -> (Mesh, Vec<usize>) {
+        let mut mesh = icosphere(4, 1.0);
+        for v in &mut mesh.vertices {
+            v[1] *= 1.3;
+            v[2] *= 1.7;
+        }
+        let mirror = (0..mesh.n_vertices())
+            .map(|v| {
+                let p = mesh.vertices[v];
+                let q = [-p[0], p[1], p[2]];
+                (0..mesh.n_vertices())
+                    .min_by(|&a, &b| {
+                        let d = |u: usize| {
+                            let r = mesh.vertices[u];
+                            (r[0] - q[0]).powi(2) + (r[1] - q[1]).powi(2) + (r[2] - q[2]).powi(2)
+                        };
+                        d(a).total_cmp(&d(b))
+                    })
+                    .unwrap()
+            })
+            .collect();
+        (mesh, mirror)
+    }
+
+    #[test]
+    fn a_mirror_map_reads_as_reversed_and_the_identity_as_kept() {
+        let (mesh, mirror) = ellipsoid_and_mirror();
+        let identity: Vec<usize> = (0..mesh.n_vertices()).collect();
+        let kept = map_orientation(&mesh, &mesh, &identity);
+        assert_eq!(kept.score, 1.0);
+        assert!(kept.voting_area > 0.99);
+        let mirrored = map_orientation(&mesh, &mesh, &mirror);
+        assert!(mirrored.score < -0.95, "a mirror image scores {}", mirrored.score);
+    }
+
+    #[test]
+    fn a_mirrored_half_is_repaired_and_a_whole_mirror_image_too() {
+        let (mesh, mirror) = ellipsoid_and_mirror();
+        let n = mesh.n_vertices();
+        let right = |map: &[usize]| map.iter().enumerate().filter(|(v, &r)| *v == r).count() as f64 / n as f64;
+        // The upper half (z > 0.3) mapped through the mirror: a "limb" the wrong way round.
+        let half: Vec<usize> = (0..n).map(|v| if mesh.vertices[v][2] > 0.3 { mirror[v] } else { v }).collect();
+        assert!(right(&half) < 0.7);
+        let u = unflip(&mesh, &mesh, &half, &mirror, 0.2).expect("the mirrored half is found");
+        assert!(u.score_after > u.score_before);
+        assert!(right(&u.map) > 0.97, "{:.3} of the vertices right after the repair", right(&u.map));
+        // A whole mirror image becomes the identity (up to the mirror's own rounding).
+        let whole = unflip(&mesh, &mesh, &mirror, &mirror, 0.2).expect("the mirror image is found");
+        assert!(right(&whole.map) > 0.97);
+        // An orientation-preserving map is left alone.
+        let identity: Vec<usize> = (0..n).collect();
+        assert!(unflip(&mesh, &mesh, &identity, &mirror, 0.2).is_none());
+    }
+
+    #[test]
+    fn symmetry_from_pairs_refuses_bad_pairs() {
+        let (mesh, _) = ellipsoid_and_mirror();
+        assert!(symmetry_from_pairs(&mesh, &[]).is_err());
+        let n = mesh.n_vertices();
+        let err = symmetry_from_pairs(&mesh, &[(0, n)]).unwrap_err().to_string();
+        assert!(err.contains("outside"), "{err}");
+    }
+}

@@ -71,6 +71,10 @@ pub struct PreparedShape {
     /// when known; a reference with one lets the regulariser repair mirrored maps
     /// ([`RegularizerParams::unflip`]).
     pub symmetry: Option<Arc<[usize]>>,
+    /// A spectrum with more eigenpairs than [`PreparedShape::spectrum`] (whose first ones it
+    /// repeats) for the ZoomOut refinement ([`refine_zoomout`]), when given: ZoomOut's precision
+    /// grows with its final basis, the descriptors need only the first K.
+    pub zoomout_spectrum: Option<Arc<Spectrum>>,
 }
 
 impl PreparedShape {
@@ -84,7 +88,29 @@ impl PreparedShape {
             )));
         }
         let heat = HeatMethodSolver::new(&mesh, heat)?;
-        Ok(Self { mesh, spectrum, heat, columns: columns::ColumnCache::new(Self::KEPT_COLUMNS), symmetry: None })
+        Ok(Self { mesh, spectrum, heat, columns: columns::ColumnCache::new(Self::KEPT_COLUMNS),
+            symmetry: None,
+            zoomout_spectrum: None,
+        })
+    }
+
+    /// The same shape with a larger spectrum for ZoomOut (see
+    /// [`PreparedShape::zoomout_spectrum`]); one of another mesh is refused.
+    pub fn with_zoomout_spectrum(mut self, spectrum: Arc<Spectrum>) -> Result<Self, Error> {
+        if spectrum.n_vertices != self.mesh.n_vertices() {
+            return Err(Error::SizeMismatch(format!(
+                "a ZoomOut spectrum of {} vertices for a shape of {}",
+                spectrum.n_vertices,
+                self.mesh.n_vertices()
+            )));
+        }
+        self.zoomout_spectrum = Some(spectrum);
+        Ok(self)
+    }
+
+    /// The basis ZoomOut refines in: the ZoomOut spectrum when given, else the spectrum.
+    pub fn zoomout_basis(&self) -> &Spectrum {
+        self.zoomout_spectrum.as_deref().unwrap_or(&self.spectrum)
     }
 
     /// The same shape with its left/right self-map (see [`PreparedShape::symmetry`]); a map of

@@ -120,7 +120,9 @@ pub fn refine_zoomout(
     map: &[usize],
     params: &ZoomOutParams,
 ) -> Result<Option<Vec<usize>>, Error> {
-    let k_final = params.k_final.min(test.spectrum.k()).min(reference.spectrum.k());
+    // The shapes' ZoomOut bases: more eigenpairs than the descriptors' when they carry them.
+    let (test_basis, reference_basis) = (test.zoomout_basis(), reference.zoomout_basis());
+    let k_final = params.k_final.min(test_basis.k()).min(reference_basis.k());
     let schedule = ZoomOutSchedule { k_start: params.k_start.min(k_final), k_final, step: params.step };
     let test_cells = sample_cells(&test.mesh, params.samples)?;
     let reference_cells = sample_cells(&reference.mesh, params.samples)?;
@@ -128,9 +130,9 @@ pub fn refine_zoomout(
         .radius
         .map(|r| cell_balls(&reference.mesh, &reference_cells, r * reference.mesh.surface_area().sqrt()));
     let c = zoomout_on_samples(
-        &test.spectrum,
+        test_basis,
         &test_cells,
-        &reference.spectrum,
+        reference_basis,
         &reference_cells,
         balls.as_ref(),
         map,
@@ -138,7 +140,7 @@ pub fn refine_zoomout(
     )?;
     let restrict = balls.as_ref().map(|b| (b, map));
     let refined =
-        point_to_point_in_cells(&test.spectrum, &reference.spectrum, &reference_cells, restrict, c.as_ref())?;
+        point_to_point_in_cells(test_basis, reference_basis, &reference_cells, restrict, c.as_ref())?;
     if params.check_samples == 0 {
         return Ok(Some(refined));
     }
