@@ -191,7 +191,6 @@ impl EvalArgs {
             samples: self.zoomout_samples,
             radius: self.zoomout_radius,
             check_samples: self.zoomout_check,
-            ..Default::default()
         }
     }
 

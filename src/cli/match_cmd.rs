@@ -239,9 +239,11 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let mut refp = PreparedShape::new(reference.clone(), ref_spectrum, reg.heat)?;
     if let Some(zp) = &zoomout_params {
         let sp = spectrum(&spectrum_mesh, zp, cache.as_ref(), &args.mesh)?;
-        let sp = if args.to.is_none() { part.spectrum_for_matching(&spectrum_mesh, sp, ref_area).0 } else { sp };
+        let sp =
+            if args.to.is_none() { part.spectrum_for_matching(&spectrum_mesh, sp, ref_area).0 } else { sp };
         test = test.with_zoomout_spectrum(Arc::new(sp))?;
-        refp = refp.with_zoomout_spectrum(Arc::new(spectrum(&reference, zp, cache.as_ref(), &args.reference)?))?;
+        refp =
+            refp.with_zoomout_spectrum(Arc::new(spectrum(&reference, zp, cache.as_ref(), &args.reference)?))?;
     }
     // The reference's left/right symmetry, when the model stores it (trained with `.sym.vts`),
     // lets the regulariser repair mirrored maps.

@@ -291,14 +291,15 @@ fn model_reference(shapes: &[Labelled], n_labels: usize, name: Option<&str>) -> 
     let reference = ModelReference::new(&r.name, &r.mesh, &table);
     match (&r.rows, &r.mirror_rows) {
         (Some(rows), Some(mirror)) => {
-            let pairs: Vec<(usize, usize)> = rows
-                .iter()
-                .zip(mirror)
-                .filter_map(|(a, b)| Some(((*a)? as usize, (*b)? as usize)))
-                .collect();
+            let pairs: Vec<(usize, usize)> =
+                rows.iter().zip(mirror).filter_map(|(a, b)| Some(((*a)? as usize, (*b)? as usize))).collect();
             let symmetry = symmetry_from_pairs(&r.mesh, &pairs)
                 .with_context(|| format!("cannot read the symmetry of {}", r.name))?;
-            eprintln!("reference {}: left/right symmetry from its .sym.vts ({} mirror pairs)", r.name, pairs.len());
+            eprintln!(
+                "reference {}: left/right symmetry from its .sym.vts ({} mirror pairs)",
+                r.name,
+                pairs.len()
+            );
             Ok(reference.with_symmetry(&symmetry)?)
         }
         _ => Ok(reference),

@@ -663,7 +663,11 @@ fn solve_rows(
 /// assert_eq!(map[2], 0);
 /// assert_eq!(map[1], 2); // nearest labelled vertex is 0
 /// ```
-pub fn vertex_symmetry(mesh: &Mesh, truth: &[usize], label_symmetry: &[usize]) -> Result<Vec<usize>, EvalError> {
+pub fn vertex_symmetry(
+    mesh: &Mesh,
+    truth: &[usize],
+    label_symmetry: &[usize],
+) -> Result<Vec<usize>, EvalError> {
     let n = mesh.n_vertices();
     if truth.len() != label_symmetry.len() {
         return Err(EvalError::SizeMismatch(format!(
@@ -675,6 +679,7 @@ pub fn vertex_symmetry(mesh: &Mesh, truth: &[usize], label_symmetry: &[usize]) -
     if truth.iter().any(|&v| v >= n) || label_symmetry.iter().any(|&k| k >= truth.len()) {
         return Err(EvalError::InvalidInput("a label table or label symmetry entry is out of range".into()));
     }
-    let pairs: Vec<(usize, usize)> = truth.iter().enumerate().map(|(k, &v)| (v, truth[label_symmetry[k]])).collect();
+    let pairs: Vec<(usize, usize)> =
+        truth.iter().enumerate().map(|(k, &v)| (v, truth[label_symmetry[k]])).collect();
     crate::regularizer::symmetry_from_pairs(mesh, &pairs).map_err(|e| EvalError::InvalidInput(e.to_string()))
 }

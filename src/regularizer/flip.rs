@@ -259,9 +259,11 @@ mod tests {
     fn a_mirrored_half_is_repaired_and_a_whole_mirror_image_too() {
         let (mesh, mirror) = ellipsoid_and_mirror();
         let n = mesh.n_vertices();
-        let right = |map: &[usize]| map.iter().enumerate().filter(|(v, &r)| *v == r).count() as f64 / n as f64;
+        let right =
+            |map: &[usize]| map.iter().enumerate().filter(|(v, &r)| *v == r).count() as f64 / n as f64;
         // The upper half (z > 0.3) mapped through the mirror: a "limb" the wrong way round.
-        let half: Vec<usize> = (0..n).map(|v| if mesh.vertices[v][2] > 0.3 { mirror[v] } else { v }).collect();
+        let half: Vec<usize> =
+            (0..n).map(|v| if mesh.vertices[v][2] > 0.3 { mirror[v] } else { v }).collect();
         assert!(right(&half) < 0.7);
         let u = unflip(&mesh, &mesh, &half, &mirror, 0.2).expect("the mirrored half is found");
         assert!(u.score_after > u.score_before);

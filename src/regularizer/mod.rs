@@ -34,10 +34,10 @@ mod scan;
 mod smoothing;
 
 pub use error::RegularizerError;
+use error::RegularizerError as Error;
 pub use flip::{
     map_orientation, smoothed_orientation, symmetry_from_pairs, unflip, unflip_rounds, MapOrientation, Unflip,
 };
-use error::RegularizerError as Error;
 use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
@@ -88,7 +88,11 @@ impl PreparedShape {
             )));
         }
         let heat = HeatMethodSolver::new(&mesh, heat)?;
-        Ok(Self { mesh, spectrum, heat, columns: columns::ColumnCache::new(Self::KEPT_COLUMNS),
+        Ok(Self {
+            mesh,
+            spectrum,
+            heat,
+            columns: columns::ColumnCache::new(Self::KEPT_COLUMNS),
             symmetry: None,
             zoomout_spectrum: None,
         })
@@ -738,7 +742,8 @@ pub fn dense_map(
             let mut refined = refine_zoomout(test, reference, &map, z)?;
             // ZoomOut's map is smooth, so its orientation tells mirrored limbs more clearly than
             // the grown map's: repair them and refine once more.
-            if let (Some(threshold), Some(symmetry), Some(r)) = (params.unflip, &reference.symmetry, &refined) {
+            if let (Some(threshold), Some(symmetry), Some(r)) = (params.unflip, &reference.symmetry, &refined)
+            {
                 if let Some(u) = unflip(&test.mesh, &reference.mesh, r, symmetry, threshold) {
                     refined = refine_zoomout(test, reference, &u.map, z)?.or(Some(u.map));
                 }
