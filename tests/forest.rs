@@ -88,8 +88,11 @@ fn deterministic_given_seed_and_posteriors_sum_to_one() {
     let f = family(3);
     let set = set_of(&f, &[0, 1]);
     let p = RandomForest::params().n_trees(4).seed(11);
-    let (a, b) = (p.clone().fit(&set).unwrap(), p.fit(&set).unwrap());
+    let (a, b) = (p.clone().fit(&set).unwrap(), p.clone().fit(&set).unwrap());
     assert_eq!(a, b);
+    // The by-value fit (it frees the spectra before growing) grows the very same trees.
+    let owned = p.check().unwrap().fit_owned(set.clone(), &|_| {}).unwrap();
+    assert_eq!(owned, a, "fit_owned differs from fit");
     let (pa, pb) = (a.predict(&f.spectra[2]).unwrap(), b.predict(&f.spectra[2]).unwrap());
     assert_eq!(pa, pb);
     let c = RandomForest::params().n_trees(4).seed(12).fit(&set).unwrap();

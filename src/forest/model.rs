@@ -289,8 +289,30 @@ impl RandomForestValidParams {
         set: &TrainingSet,
         on_tree: &(dyn Fn(usize) + Sync),
     ) -> Result<RandomForest, ForestError> {
+        let plan = self.plan(previous, set)?;
+        Ok(self.grow(plan, previous, on_tree))
+    }
+
+    /// A fresh fit ([`fit_with_progress`](Self::fit_with_progress) with no previous forest) that
+    /// takes the training set by value and drops it, spectra included, once the descriptor
+    /// tables the trees split on are built: the `f64` eigenvectors (`n × K × 8` bytes per
+    /// shape, 252 MB for six shapes of 52K vertices) are then freed during tree growth, unless
+    /// the caller still holds them (they are shared `Arc`s). Same trees as
+    /// [`fit`](Self::fit) on the same set.
+    pub fn fit_owned(
+        &self,
+        set: TrainingSet,
+        on_tree: &(dyn Fn(usize) + Sync),
+    ) -> Result<RandomForest, ForestError> {
+        let plan = self.plan(None, &set)?;
+        drop(set);
+        Ok(self.grow(plan, None, on_tree))
+    }
+
+    /// Everything a fit needs from the training set (its descriptor tables and samples).
+    fn plan(&self, previous: Option<&RandomForest>, set: &TrainingSet) -> Result<Plan, ForestError> {
         let p = &self.0;
-        let (k, grid, n_new, first_index, mut trees) = match previous {
+        let (k, grid, n_new, first_index, trees) = match previous {
             None => {
                 let k = set.k();
                 let grid = energy_grid(set, k, p)?;
@@ -323,6 +345,18 @@ impl RandomForestValidParams {
             });
         }
         let data = build_train_data(set, k, grid)?;
+        Ok(Plan { k, grid, n_new, first_index, trees, data, n_labels: set.n_labels() })
+    }
+
+    /// Grows the planned trees and assembles the forest.
+    fn grow(
+        &self,
+        plan: Plan,
+        previous: Option<&RandomForest>,
+        on_tree: &(dyn Fn(usize) + Sync),
+    ) -> RandomForest {
+        let p = &self.0;
+        let Plan { k, grid, n_new, first_index, mut trees, data, n_labels } = plan;
         let span = tracing::info_span!("forest_fit", trees = n_new, samples = data.sample_label.len());
         let _g = span.enter();
         let new_trees: Vec<Tree> = (0..n_new as u64)
@@ -333,21 +367,33 @@ impl RandomForestValidParams {
                 tree
             })
             .collect();
+        drop(data);
         trees.extend(new_trees);
         if trees.len() > p.n_trees {
             let drop = trees.len() - p.n_trees;
             trees.drain(..drop);
         }
-        Ok(RandomForest {
+        RandomForest {
             params: p.clone(),
-            n_labels: set.n_labels(),
+            n_labels,
             k,
             grid,
             trees,
             next_tree_index: first_index + n_new as u64,
             reference: previous.and_then(|p| p.reference.clone()),
-        })
+        }
     }
+}
+
+/// A fit's inputs, taken from the training set ([`RandomForestValidParams::plan`]).
+struct Plan {
+    k: usize,
+    grid: EnergyGrid,
+    n_new: usize,
+    first_index: u64,
+    trees: Vec<Tree>,
+    data: TrainData,
+    n_labels: usize,
 }
 
 fn energy_grid(set: &TrainingSet, k: usize, p: &RandomForestParams) -> Result<EnergyGrid, ForestError> {

@@ -77,6 +77,8 @@ const WEAK: f64 = 1e-8;
 /// Columns that fell below this fraction are numerically in the span of the basis: they are
 /// replaced by fresh random directions.
 const BREAKDOWN: f64 = 1e-13;
+/// Rows per strip of the thick restart's basis update.
+const RESTART_STRIP: usize = 4096;
 /// A reorthogonalisation pass that shrinks a column below this fraction is repeated.
 const DGKS: f64 = 0.7;
 
@@ -112,7 +114,10 @@ impl BlockLanczos {
             par,
             Default::default(),
         ));
-        let mut restart_tmp = Mat::<f64>::zeros(n, ncv);
+        // The thick restart `V[:, ..keep] ← V[:, ..m] S` is done a strip of rows at a time (row i
+        // of the result only reads row i of V), so it needs a strip-sized buffer, not a second
+        // n × ncv basis (100 MB at 52K vertices, K = 100).
+        let mut restart_tmp = Mat::<f64>::zeros(RESTART_STRIP.min(n), ncv);
         let mut norms = vec![0.0; b];
         let mut mid_norms = vec![0.0; b];
         // Basis size at which the current expansion started (right after a (re)start).
@@ -261,10 +266,12 @@ impl BlockLanczos {
             // Thick restart: keep the wanted Ritz vectors plus extra ones, then the residual block.
             let keep = (self.nev + nconv.min((m - self.nev) / 2)).min(ncv - 2 * b);
             let s_keep = Mat::<f64>::from_fn(m, keep, |i, j| evd_u[(i, m - 1 - j)]);
-            {
-                let mut t = restart_tmp.as_mut().subcols_mut(0, keep);
-                matmul(t.rb_mut(), Accum::Replace, v.as_ref().subcols(0, m), s_keep.as_ref(), 1.0, par);
-                v.as_mut().subcols_mut(0, keep).copy_from(t.rb());
+            for r0 in (0..n).step_by(RESTART_STRIP) {
+                let rows = RESTART_STRIP.min(n - r0);
+                let mut t = restart_tmp.as_mut().submatrix_mut(0, 0, rows, keep);
+                let strip = v.as_ref().submatrix(r0, 0, rows, m);
+                matmul(t.rb_mut(), Accum::Replace, strip, s_keep.as_ref(), 1.0, par);
+                v.as_mut().submatrix_mut(r0, 0, rows, keep).copy_from(t.rb());
             }
             for j in 0..b {
                 let (left, right) = v.as_mut().split_at_col_mut(m);

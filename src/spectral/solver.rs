@@ -409,6 +409,8 @@ impl LaplaceBeltramiSolver {
             residuals[j] = r / lambda[j].max(1.0);
             max_res = max_res.max(residuals[j]);
         }
+        // Not needed any more: freed before the verification's factorisation.
+        drop(ly);
         // Rayleigh quotients may reorder pairs within round-off: sort (stable) by eigenvalue.
         let mut order: Vec<usize> = (0..k).collect();
         order.sort_by(|&a, &b| lambda[a].total_cmp(&lambda[b]));
@@ -559,6 +561,8 @@ impl LaplaceBeltramiSolver {
         matmul(g.as_mut(), Accum::Replace, z.transpose(), z.as_ref(), 1.0, Par::Seq);
         let mut a = Mat::<f64>::zeros(p, p);
         matmul(a.as_mut(), Accum::Replace, z.transpose(), y.as_ref(), 1.0, Par::Seq);
+        // Y is not read again: freed before the n × p result is allocated.
+        drop(y);
         for j in 0..p {
             for i in 0..p {
                 a[(i, j)] = a[(i, j)] / theta[j] + sigma * g[(i, j)];
