@@ -28,6 +28,7 @@ mod error;
 mod growth;
 mod orientation;
 mod pair;
+mod partial;
 mod refine;
 mod scan;
 mod smoothing;
@@ -38,6 +39,7 @@ use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
 pub use pair::{invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams};
+pub use partial::{partial_area_ratio, refine_zoomout_partial, PARTIAL_AREA_RATIO};
 pub use refine::{cell_balls, map_distortion, refine_zoomout, sample_cells};
 pub use scan::ScanPart;
 
