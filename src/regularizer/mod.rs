@@ -273,6 +273,10 @@ pub struct RegularizerParams {
     pub growth: Option<AnchorGrowthParams>,
     /// Optional ZoomOut refinement after the solve. Default off.
     pub zoomout: Option<ZoomOutParams>,
+    /// Refine an open part of the reference (less than [`PARTIAL_AREA_RATIO`] of its area) with
+    /// the partial ZoomOut ([`refine_zoomout_partial`]: rectangular maps whose test basis grows
+    /// with the part's spectrum) instead of the square one. Default on.
+    pub partial_zoomout: bool,
     /// Also compute the two spectral point maps of the regularised functional map for every
     /// vertex ([`DenseMap::fmap_map`], [`DenseMap::spectral_map`]), for comparison. Default off:
     /// the regulariser itself needs the spectral nearest neighbour only for the vertices that no
@@ -290,6 +294,7 @@ impl Default for RegularizerParams {
             heat: HeatParams::default(),
             growth: Some(AnchorGrowthParams::default()),
             zoomout: None,
+            partial_zoomout: true,
             spectral_maps: false,
         }
     }
@@ -677,7 +682,10 @@ pub fn dense_map(
     let (map, grown_map) = match &params.zoomout {
         Some(z) => {
             let t0 = Instant::now();
-            let refined = refine_zoomout(test, reference, &map, z)?;
+            let refined = match partial_area_ratio(test, reference) {
+                Some(_) if params.partial_zoomout => refine_zoomout_partial(test, reference, &map, z)?,
+                _ => refine_zoomout(test, reference, &map, z)?,
+            };
             timings.zoomout_s = t0.elapsed().as_secs_f64();
             match refined {
                 Some(r) => (r, Some(map)),
