@@ -177,11 +177,6 @@ pub struct EvalArgs {
     /// less than 90 % of the reference's area gets the partial, rectangular ZoomOut).
     #[arg(long)]
     pub zoomout_square: bool,
-    /// Give the regulariser the reference's left/right symmetry (the class's symmetry map), so
-    /// that a map whose triangles wind the wrong way about the surface (a mirror image, see
-    /// `regularizer::handedness`) is put the right way round.
-    #[arg(long)]
-    pub mirror_choice: bool,
 }
 
 impl EvalArgs {
@@ -633,7 +628,6 @@ pub fn run(args: EvalArgs) -> Result<()> {
         fill_holes: (args.fill_perimeter > 0.0).then_some(args.fill_perimeter),
         augment: args.augment.iter().map(|&p| vec![p]).collect(),
         augment_copies: args.augment_copies,
-        mirror_choice: args.mirror_choice,
         regularizer: args.regularizer_params(false),
         ..ProtocolParams::default()
     };

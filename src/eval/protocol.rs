@@ -124,11 +124,6 @@ pub struct ProtocolParams {
     pub augment: Vec<Vec<Perturbation>>,
     /// Copies per training shape and augmentation kind (default 4).
     pub augment_copies: usize,
-    /// Give the regulariser the reference's left/right symmetry in vertex space (from the
-    /// class's symmetry map of the labels, when every reference vertex is labelled), so that a
-    /// map it judges mirrored is put the right way round
-    /// ([`RegularizerParams::reference_symmetry`]). Default off.
-    pub mirror_choice: bool,
 }
 
 impl Default for ProtocolParams {
@@ -152,7 +147,6 @@ impl Default for ProtocolParams {
             fill_holes: Some(ScanPart::FILL_PERIMETER),
             augment: Vec::new(),
             augment_copies: 4,
-            mirror_choice: false,
         }
     }
 }
@@ -626,21 +620,7 @@ pub fn run_protocol(
 
         stage(&mut progress, "regularize");
         let t0 = Instant::now();
-        let mirrored_params;
-        let regularizer = match symmetry.filter(|_| params.mirror_choice) {
-            Some(sym) => match vertex_symmetry(table, sym, ref_prepared.mesh.n_vertices()) {
-                Some(s) => {
-                    mirrored_params = RegularizerParams {
-                        reference_symmetry: Some(Arc::new(s)),
-                        ..params.regularizer.clone()
-                    };
-                    &mirrored_params
-                }
-                None => &params.regularizer,
-            },
-            None => &params.regularizer,
-        };
-        let dense = regularize(&test_prepared, ref_prepared, &prediction, Some(table), regularizer)?;
+        let dense = regularize(&test_prepared, ref_prepared, &prediction, Some(table), &params.regularizer)?;
         timings.regularize_s = t0.elapsed().as_secs_f64();
 
         let baseline = if params.skip_baseline {
@@ -770,21 +750,5 @@ pub fn raw_map(prediction: &Prediction, label_to_vertex: &[usize]) -> Vec<usize>
         .map_labels()
         .iter()
         .map(|l| l.and_then(|l| label_to_vertex.get(l as usize).copied()).unwrap_or(fallback))
-        .collect()
-}
-
-/// The left/right self-map of a reference's vertices from the symmetry of the labels:
-/// `truth[symmetry[label of v]]` for every vertex `v`; `None` unless every vertex is the
-/// ground truth of some label.
-fn vertex_symmetry(truth: &[usize], symmetry: &[usize], n_vertices: usize) -> Option<Vec<usize>> {
-    let mut label_of = vec![usize::MAX; n_vertices];
-    for (k, &v) in truth.iter().enumerate() {
-        if v < n_vertices && label_of[v] == usize::MAX {
-            label_of[v] = k;
-        }
-    }
-    label_of
-        .iter()
-        .map(|&k| symmetry.get(k).and_then(|&m| truth.get(m)).copied().filter(|&v| v < n_vertices))
         .collect()
 }
