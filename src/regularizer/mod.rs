@@ -26,7 +26,6 @@ use std::{sync::Arc, time::Instant};
 mod columns;
 mod error;
 mod growth;
-mod handedness;
 mod orientation;
 mod pair;
 mod partial;
@@ -39,7 +38,6 @@ use error::RegularizerError as Error;
 use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
-pub use handedness::{handedness, unmirrored};
 pub use pair::{invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams};
 pub use partial::{partial_area_ratio, refine_zoomout_partial, PARTIAL_AREA_RATIO};
 pub use refine::{cell_balls, map_distortion, refine_zoomout, sample_cells};
@@ -279,11 +277,6 @@ pub struct RegularizerParams {
     /// the partial ZoomOut ([`refine_zoomout_partial`]: rectangular maps whose test basis grows
     /// with the part's spectrum) instead of the square one. Default on.
     pub partial_zoomout: bool,
-    /// A left/right self-map of the reference's vertices. When given, a grown map that
-    /// [`handedness`] judges mirrored is replaced by its mirror image through it (before the
-    /// ZoomOut refinement) if that keeps the surface's orientation better ([`unmirrored`]).
-    /// Default `None`.
-    pub reference_symmetry: Option<Arc<Vec<usize>>>,
     /// Also compute the two spectral point maps of the regularised functional map for every
     /// vertex ([`DenseMap::fmap_map`], [`DenseMap::spectral_map`]), for comparison. Default off:
     /// the regulariser itself needs the spectral nearest neighbour only for the vertices that no
@@ -302,7 +295,6 @@ impl Default for RegularizerParams {
             growth: Some(AnchorGrowthParams::default()),
             zoomout: None,
             partial_zoomout: true,
-            reference_symmetry: None,
             spectral_maps: false,
         }
     }
@@ -686,10 +678,6 @@ pub fn dense_map(
     let (map, grown_anchors, dense_orientation, reoriented) = match grown {
         Some(g) => (g.map, g.anchors, Some(g.orientation), g.reoriented),
         None => (anchor_map.clone(), 0, None, false),
-    };
-    let map = match &params.reference_symmetry {
-        Some(sym) => unmirrored(&test.mesh, &reference.mesh, &map, sym, 200)?.unwrap_or(map),
-        None => map,
     };
     let (map, grown_map) = match &params.zoomout {
         Some(z) => {
