@@ -40,6 +40,7 @@ use shapeforest::{
     },
     forest::RandomForest,
     mesh::{perturbations_name, read_mesh, write_mesh, Perturbation},
+    regularizer::map_orientation,
     spectral::{compute_spectrum, SpectrumCache, SpectrumParams},
     synth::{creature_family, CreatureParams},
 };
@@ -162,6 +163,11 @@ pub struct EvalArgs {
     /// First basis size of ZoomOut.
     #[arg(long, default_value_t = 20, value_name = "K")]
     pub zoomout_start: usize,
+    /// Last basis size of ZoomOut. With --pairs / --protocol, more than the spectrum's
+    /// eigenpairs (100) computes the tested shapes' spectra again with this many for the pair
+    /// maps' ZoomOut.
+    #[arg(long, default_value_t = 100, value_name = "K")]
+    pub zoomout_final: usize,
     /// Farthest-point samples per shape that ZoomOut's iterations run on.
     #[arg(long, default_value_t = 3000, value_name = "N")]
     pub zoomout_samples: usize,
@@ -184,6 +190,7 @@ impl EvalArgs {
     pub(super) fn zoomout_params(&self) -> shapeforest::regularizer::ZoomOutParams {
         shapeforest::regularizer::ZoomOutParams {
             k_start: self.zoomout_start,
+            k_final: self.zoomout_final,
             step: self.zoomout_step,
             samples: self.zoomout_samples,
             radius: self.zoomout_radius,
@@ -828,15 +835,23 @@ struct PeerPairs {
 
 fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usize) -> Result<()> {
     let mut csv = String::from(
-        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction\n",
+        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation\n",
     );
     for t in &report.tests {
+        let scan = t.scan.as_deref().unwrap_or(&class.shapes[t.test].mesh);
+        let reference = &class.shapes[t.reference].mesh;
         for m in &t.methods {
+            // Whether the map keeps orientation (−1: a mirror image), see `map_orientation`.
+            let orientation = if m.map.len() == scan.n_vertices() {
+                map_orientation(scan, reference, &m.map).score
+            } else {
+                f64::NAN
+            };
             let st = ErrorSummary::of(&m.strict);
             let sy = m.symmetric.as_ref().map(|y| ErrorSummary::of(y));
             let _ = writeln!(
                 csv,
-                "{},{},{},{},{},{},{},{},{:.6}",
+                "{},{},{},{},{},{},{},{},{:.6},{:.4}",
                 report.shape_names[t.test],
                 report.shape_names[t.reference],
                 m.method.name(),
@@ -845,7 +860,8 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
                 summary_cols(sy),
                 t.perturbation,
                 t.scan_vertices,
-                t.area_fraction
+                t.area_fraction,
+                orientation
             );
         }
     }

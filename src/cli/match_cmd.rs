@@ -227,7 +227,14 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let t0 = Instant::now();
     let reference = Arc::new(reference);
     let test = PreparedShape::new(part.mesh.clone(), scan_spectrum, reg.heat)?;
-    let refp = PreparedShape::new(reference.clone(), ref_spectrum, reg.heat)?;
+    let mut refp = PreparedShape::new(reference.clone(), ref_spectrum, reg.heat)?;
+    // The reference's left/right symmetry, when the model stores it (trained with `.sym.vts`),
+    // lets the regulariser repair mirrored maps.
+    let symmetry = forest.reference().filter(|r| r.is_mesh(&reference)).and_then(|r| r.symmetry_map());
+    let has_symmetry = symmetry.is_some();
+    if let Some(s) = symmetry {
+        refp = refp.with_symmetry(s.into())?;
+    }
     let prepare_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
     // With --to: the target scan's spectrum, prediction and preparation count in this stage.
@@ -294,6 +301,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
         "components": part.components,
         "matched_part_vertices": part.mesh.n_vertices(),
         "normalising_area_ratio": scale_ratio,
+        "reference_symmetry": has_symmetry,
         "label_table": match (&args.reference_labels, forest.reference()) {
             (Some(p), _) => format!("from {}", p.display()),
             (None, Some(r)) => format!("stored in the model (reference `{}`)", r.name),

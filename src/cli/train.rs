@@ -10,6 +10,7 @@ use shapeforest::{
         ModelReference, RandomForest, TrainingSet, TrainingShape,
     },
     mesh::Mesh,
+    regularizer::symmetry_from_pairs,
     synth::{creature_family, CreatureParams},
 };
 
@@ -120,6 +121,9 @@ struct Labelled {
     mesh: Mesh,
     labels: Vec<Option<u32>>,
     rows: Option<Vec<Option<u32>>>,
+    /// Rows of the `.sym.vts` beside a `.vts` (row `k`: the vertex at the mirror image of row
+    /// `k`'s), when there is one.
+    mirror_rows: Option<Vec<Option<u32>>>,
 }
 
 fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
@@ -138,6 +142,7 @@ fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
                 mesh,
                 labels: labels_identity(n),
                 rows: None,
+                mirror_rows: None,
             })
             .collect();
         return Ok((shapes, n));
@@ -171,7 +176,13 @@ fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
                 eprintln!("skipping {why}");
                 continue;
             }
-            shapes.push(Labelled { name: shape_name(&path), mesh, labels: labels_identity(n), rows: None });
+            shapes.push(Labelled {
+                name: shape_name(&path),
+                mesh,
+                labels: labels_identity(n),
+                rows: None,
+                mirror_rows: None,
+            });
         }
         let n = n_labels.context("no readable shapes in the class folder")?;
         return Ok((shapes, n));
@@ -197,8 +208,25 @@ fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
             LabelLayout::PerVertex => false,
             LabelLayout::PerLabel => true,
         };
+        let mut mirror_rows = None;
         let (labels, rows) = if per_label {
             let rows = read_per_label(label_path, !args.zero_based_vts, mesh.n_vertices())?;
+            // `NAME.sym.vts` beside `NAME.vts`: the mirror image of every row (remeshed TOSCA,
+            // FAUST), which gives the reference its left/right symmetry.
+            let sym_path = label_path.with_extension("sym.vts");
+            if is_vts && sym_path.is_file() {
+                let m = read_per_label(&sym_path, !args.zero_based_vts, mesh.n_vertices())?;
+                if m.len() != rows.len() {
+                    bail!(
+                        "{} has {} rows but {} has {}: a .sym.vts lists the mirror of every row",
+                        sym_path.display(),
+                        m.len(),
+                        label_path.display(),
+                        rows.len()
+                    );
+                }
+                mirror_rows = Some(m);
+            }
             (per_vertex_labels(&rows, mesh.n_vertices()), Some(rows))
         } else {
             let file =
@@ -207,7 +235,7 @@ fn gather(args: &TrainArgs) -> Result<(Vec<Labelled>, usize)> {
                 .with_context(|| format!("in label map {}", label_path.display()))?;
             (labels, None)
         };
-        shapes.push(Labelled { name: shape_name(mesh_path), mesh, labels, rows });
+        shapes.push(Labelled { name: shape_name(mesh_path), mesh, labels, rows, mirror_rows });
     }
     let n = match args.n_labels {
         Some(n) => n,
@@ -260,7 +288,21 @@ fn model_reference(shapes: &[Labelled], n_labels: usize, name: Option<&str>) -> 
             r.name, table.exact, table.filled, table.unused
         );
     }
-    Ok(ModelReference::new(&r.name, &r.mesh, &table))
+    let reference = ModelReference::new(&r.name, &r.mesh, &table);
+    match (&r.rows, &r.mirror_rows) {
+        (Some(rows), Some(mirror)) => {
+            let pairs: Vec<(usize, usize)> = rows
+                .iter()
+                .zip(mirror)
+                .filter_map(|(a, b)| Some(((*a)? as usize, (*b)? as usize)))
+                .collect();
+            let symmetry = symmetry_from_pairs(&r.mesh, &pairs)
+                .with_context(|| format!("cannot read the symmetry of {}", r.name))?;
+            eprintln!("reference {}: left/right symmetry from its .sym.vts ({} mirror pairs)", r.name, pairs.len());
+            Ok(reference.with_symmetry(&symmetry)?)
+        }
+        _ => Ok(reference),
+    }
 }
 
 pub fn run(args: TrainArgs) -> Result<()> {

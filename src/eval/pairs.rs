@@ -313,6 +313,26 @@ pub fn run_pairs(
     }
     timings.to_reference_s = t0.elapsed().as_secs_f64();
 
+    // ZoomOut of the pair maps beyond the descriptors' eigenpairs: the tested shapes again, with
+    // a spectrum of `zoomout.k_final` eigenpairs (its first K are the descriptors' own).
+    let extended_k = params.zoomout.k_final;
+    let mut extended: HashMap<usize, PreparedShape> = HashMap::new();
+    if extended_k > params.spectrum.k {
+        let t0 = Instant::now();
+        let sp_params = SpectrumParams { k: extended_k, ..params.spectrum.clone() };
+        for &s in &tested {
+            let sp = spectrum_cached(&shapes[s].mesh, &sp_params, cache.as_ref())?;
+            extended.insert(s, PreparedShape::new(shapes[s].mesh.clone(), Arc::new(sp), heat)?);
+        }
+        timings.spectra_s += t0.elapsed().as_secs_f64();
+    }
+    // With extended spectra the pair map's ZoomOut runs on them, after the pair step.
+    let pair_regularizer = if extended.is_empty() {
+        params.regularizer.clone()
+    } else {
+        RegularizerParams { zoomout: None, ..params.regularizer.clone() }
+    };
+
     // The maps of every pair, grouped by target so that each target's fields are made once.
     emit(PairsEvent::Stage("pairs"));
     // Per pair: the three maps (pair, composed, pair + ZoomOut) and the pair step's seconds.
@@ -329,17 +349,21 @@ pub fn run_pairs(
             &a_to_ref.map,
             &b_to_ref.map,
             Some(table),
-            &params.regularizer,
+            &pair_regularizer,
             &params.pair,
         )?;
         let pair_s = t0.elapsed().as_secs_f64();
         timings.pairs_s += pair_s;
         // With the regulariser's ZoomOut on, the pair map is already refined (or was kept).
-        let zoomed = match (pair.grown_map.take(), &params.regularizer.zoomout) {
+        let zoomed = match (pair.grown_map.take(), &pair_regularizer.zoomout) {
             (Some(grown), _) => std::mem::replace(&mut pair.map, grown),
             (None, Some(_)) => pair.map.clone(),
             (None, None) => {
-                refine_zoomout(pa, pb, &pair.map, &params.zoomout)?.unwrap_or_else(|| pair.map.clone())
+                let (za, zb) = match (extended.get(&a), extended.get(&b)) {
+                    (Some(za), Some(zb)) => (za, zb),
+                    _ => (pa, pb),
+                };
+                refine_zoomout(za, zb, &pair.map, &params.zoomout)?.unwrap_or_else(|| pair.map.clone())
             }
         };
         maps.push((pair.map, composed, zoomed, pair_s));

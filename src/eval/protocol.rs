@@ -544,8 +544,14 @@ pub fn run_protocol(
         let t0 = Instant::now();
         if reference_cache.as_ref().map(|r| r.0) != Some(reference) {
             let r = &shapes[reference];
-            let prepared =
+            let mut prepared =
                 PreparedShape::new(r.mesh.clone(), spectrum_of(reference)?, params.regularizer.heat)?;
+            // The class's left/right symmetry, when known, lets the regulariser repair mirrored
+            // maps (a property of the label set, the same from the training shapes alone).
+            if let (Some(sym), Some(_)) = (symmetry, params.regularizer.unflip) {
+                let self_map = super::symmetry::vertex_symmetry(&r.mesh, &r.truth, sym)?;
+                prepared = prepared.with_symmetry(self_map.into())?;
+            }
             timings.prepare_s += t0.elapsed().as_secs_f64();
             stage(&mut progress, "evaluate");
             let t1 = Instant::now();

@@ -646,3 +646,35 @@ fn solve_rows(
     })
     .map_err(|_| EvalError::InvalidInput("the symmetry least-squares system is not positive definite".into()))
 }
+
+/// The left/right self-map of one shape (`map[v]`: the vertex at the mirror image of `v`) from a
+/// symmetry of the labels (`label_symmetry[k]`: the label at the mirror image of label `k`) and the
+/// shape's label table (`truth[k]`: its vertex for label `k`). A vertex that carries no label takes
+/// the mirror of its nearest labelled vertex (Euclidean). Inputs of mismatched lengths or out-of-range
+/// entries are refused.
+///
+/// ```
+/// use shapeforest::{eval::symmetry::vertex_symmetry, mesh::Mesh};
+/// let v = vec![[-1.0, 0.0, 0.0], [-0.9, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+/// let mesh = Mesh::new(v, vec![[0, 2, 3], [0, 1, 3]]).unwrap();
+/// // Labels 0 and 1 sit at x = −1 and x = 1 and mirror each other; vertex 1 carries no label.
+/// let map = vertex_symmetry(&mesh, &[0, 2], &[1, 0]).unwrap();
+/// assert_eq!(map[0], 2);
+/// assert_eq!(map[2], 0);
+/// assert_eq!(map[1], 2); // nearest labelled vertex is 0
+/// ```
+pub fn vertex_symmetry(mesh: &Mesh, truth: &[usize], label_symmetry: &[usize]) -> Result<Vec<usize>, EvalError> {
+    let n = mesh.n_vertices();
+    if truth.len() != label_symmetry.len() {
+        return Err(EvalError::SizeMismatch(format!(
+            "a label symmetry of {} labels for a table of {}",
+            label_symmetry.len(),
+            truth.len()
+        )));
+    }
+    if truth.iter().any(|&v| v >= n) || label_symmetry.iter().any(|&k| k >= truth.len()) {
+        return Err(EvalError::InvalidInput("a label table or label symmetry entry is out of range".into()));
+    }
+    let pairs: Vec<(usize, usize)> = truth.iter().enumerate().map(|(k, &v)| (v, truth[label_symmetry[k]])).collect();
+    crate::regularizer::symmetry_from_pairs(mesh, &pairs).map_err(|e| EvalError::InvalidInput(e.to_string()))
+}

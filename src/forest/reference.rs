@@ -42,6 +42,12 @@ pub struct ModelReference {
     /// (`label_to_vertex` is the identity): any mesh of the class with `n_vertices` vertices
     /// can serve as the reference, not only this one.
     pub shared_indexing: bool,
+    /// The reference's left/right self-map (`symmetry[v]`: the vertex at the mirror image of
+    /// `v`), when the training data gave one (a `.sym.vts` beside the reference's `.vts`); with
+    /// it the regulariser repairs mirrored maps ([`crate::regularizer::unflip`]). Absent in
+    /// files written before it existed.
+    #[serde(default)]
+    pub symmetry: Option<Vec<u32>>,
 }
 
 impl ModelReference {
@@ -53,6 +59,7 @@ impl ModelReference {
             mesh_hash: mesh.content_hash(),
             label_to_vertex: table.table.iter().map(|&v| v as u32).collect(),
             shared_indexing: false,
+            symmetry: None,
         }
     }
 
@@ -64,6 +71,7 @@ impl ModelReference {
             mesh_hash: mesh.content_hash(),
             label_to_vertex: (0..mesh.n_vertices() as u32).collect(),
             shared_indexing: true,
+            symmetry: None,
         }
     }
 
@@ -90,6 +98,25 @@ impl ModelReference {
         self.label_to_vertex.iter().map(|&v| v as usize).collect()
     }
 
+    /// The same reference with its left/right self-map (one entry per reference vertex, each a
+    /// vertex of the reference; see [`ModelReference::symmetry`]).
+    pub fn with_symmetry(mut self, symmetry: &[usize]) -> Result<Self, ForestError> {
+        if symmetry.len() != self.n_vertices || symmetry.iter().any(|&v| v >= self.n_vertices) {
+            return Err(ForestError::IncompatibleModel(format!(
+                "a symmetry map of {} entries for a reference of {} vertices",
+                symmetry.len(),
+                self.n_vertices
+            )));
+        }
+        self.symmetry = Some(symmetry.iter().map(|&v| v as u32).collect());
+        Ok(self)
+    }
+
+    /// The self-map as reference-vertex indices, when stored.
+    pub fn symmetry_map(&self) -> Option<Vec<usize>> {
+        self.symmetry.as_ref().map(|s| s.iter().map(|&v| v as usize).collect())
+    }
+
     /// Checks the table against a label count (used when a model file is read).
     pub(crate) fn validate(&self, n_labels: usize) -> Result<(), String> {
         if self.label_to_vertex.len() != n_labels {
@@ -103,6 +130,15 @@ impl ModelReference {
                 "reference table names vertex {v} of a {}-vertex reference",
                 self.n_vertices
             ));
+        }
+        if let Some(s) = &self.symmetry {
+            if s.len() != self.n_vertices || s.iter().any(|&v| v as usize >= self.n_vertices) {
+                return Err(format!(
+                    "reference symmetry has {} entries (or names a vertex outside) for a {}-vertex reference",
+                    s.len(),
+                    self.n_vertices
+                ));
+            }
         }
         Ok(())
     }

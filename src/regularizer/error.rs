@@ -9,6 +9,9 @@ pub enum RegularizerError {
     /// Input sizes do not agree (a prediction, a spectrum or a label table of another shape).
     #[error("size mismatch: {0}")]
     SizeMismatch(String),
+    /// An input is out of range or empty (e.g. a symmetry map naming a vertex the shape lacks).
+    #[error("invalid input: {0}")]
+    InvalidInput(String),
     /// A parameter is invalid.
     #[error("invalid regulariser parameter `{name}`: {reason}")]
     InvalidParameter {

@@ -25,6 +25,7 @@ use std::{sync::Arc, time::Instant};
 
 mod columns;
 mod error;
+mod flip;
 mod growth;
 mod orientation;
 mod pair;
@@ -35,6 +36,9 @@ mod smoothing;
 
 pub use error::RegularizerError;
 use error::RegularizerError as Error;
+pub use flip::{
+    map_orientation, smoothed_orientation, symmetry_from_pairs, unflip, unflip_rounds, MapOrientation, Unflip,
+};
 use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
@@ -65,6 +69,10 @@ pub struct PreparedShape {
     pub heat: HeatMethodSolver,
     /// The distance columns solved so far (see the `columns` module).
     columns: columns::ColumnCache,
+    /// The shape's left/right self-map (`symmetry[v]`: the vertex at the mirror image of `v`),
+    /// when known; a reference with one lets the regulariser repair mirrored maps
+    /// ([`RegularizerParams::unflip`]).
+    pub symmetry: Option<Arc<[usize]>>,
 }
 
 impl PreparedShape {
@@ -78,7 +86,27 @@ impl PreparedShape {
             )));
         }
         let heat = HeatMethodSolver::new(&mesh, heat)?;
-        Ok(Self { mesh, spectrum, heat, columns: columns::ColumnCache::new(Self::KEPT_COLUMNS) })
+        Ok(Self {
+            mesh,
+            spectrum,
+            heat,
+            columns: columns::ColumnCache::new(Self::KEPT_COLUMNS),
+            symmetry: None,
+        })
+    }
+
+    /// The same shape with its left/right self-map (see [`PreparedShape::symmetry`]); a map of
+    /// another length is refused.
+    pub fn with_symmetry(mut self, symmetry: Arc<[usize]>) -> Result<Self, Error> {
+        let n = self.mesh.n_vertices();
+        if symmetry.len() != n || symmetry.iter().any(|&v| v >= n) {
+            return Err(Error::SizeMismatch(format!(
+                "a symmetry map of {} entries for a shape of {n} vertices",
+                symmetry.len()
+            )));
+        }
+        self.symmetry = Some(symmetry);
+        Ok(self)
     }
 
     /// Distance columns a prepared shape keeps for reuse (least recently used dropped first):
@@ -277,6 +305,11 @@ pub struct RegularizerParams {
     /// the partial ZoomOut ([`refine_zoomout_partial`]: rectangular maps whose test basis grows
     /// with the part's spectrum) instead of the square one. Default on.
     pub partial_zoomout: bool,
+    /// Repair of mirrored parts of the grown map (before ZoomOut) when the reference carries
+    /// its symmetry ([`PreparedShape::symmetry`]): where the map's smoothed orientation
+    /// ([`smoothed_orientation`]) is below minus this threshold, images are replaced by their
+    /// mirror ([`unflip`]). Default `Some(0.2)`; `None`: off.
+    pub unflip: Option<f64>,
     /// Also compute the two spectral point maps of the regularised functional map for every
     /// vertex ([`DenseMap::fmap_map`], [`DenseMap::spectral_map`]), for comparison. Default off:
     /// the regulariser itself needs the spectral nearest neighbour only for the vertices that no
@@ -295,6 +328,7 @@ impl Default for RegularizerParams {
             growth: Some(AnchorGrowthParams::default()),
             zoomout: None,
             partial_zoomout: true,
+            unflip: Some(0.2),
             spectral_maps: false,
         }
     }
@@ -679,13 +713,33 @@ pub fn dense_map(
         Some(g) => (g.map, g.anchors, Some(g.orientation), g.reoriented),
         None => (anchor_map.clone(), 0, None, false),
     };
+    let map = match (params.unflip, &reference.symmetry) {
+        (Some(threshold), Some(symmetry)) => {
+            unflip(&test.mesh, &reference.mesh, &map, symmetry, threshold).map_or(map, |u| u.map)
+        }
+        _ => map,
+    };
     let (map, grown_map) = match &params.zoomout {
         Some(z) => {
             let t0 = Instant::now();
-            let refined = match partial_area_ratio(test, reference) {
-                Some(_) if params.partial_zoomout => refine_zoomout_partial(test, reference, &map, z)?,
-                _ => refine_zoomout(test, reference, &map, z)?,
+            // An open part of the reference gets the partial (rectangular) ZoomOut.
+            let partial = params.partial_zoomout && partial_area_ratio(test, reference).is_some();
+            let zoom = |m: &[usize]| {
+                if partial {
+                    refine_zoomout_partial(test, reference, m, z)
+                } else {
+                    refine_zoomout(test, reference, m, z)
+                }
             };
+            let mut refined = zoom(&map)?;
+            // ZoomOut's map is smooth, so its orientation tells mirrored limbs more clearly than
+            // the grown map's: repair them and refine once more.
+            if let (Some(threshold), Some(symmetry), Some(r)) = (params.unflip, &reference.symmetry, &refined)
+            {
+                if let Some(u) = unflip(&test.mesh, &reference.mesh, r, symmetry, threshold) {
+                    refined = zoom(&u.map)?.or(Some(u.map));
+                }
+            }
             timings.zoomout_s = t0.elapsed().as_secs_f64();
             match refined {
                 Some(r) => (r, Some(map)),
