@@ -179,6 +179,10 @@ pub struct EvalArgs {
     /// map it started from to be kept (0: always keep it).
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub zoomout_check: usize,
+    /// Refine an open partial scan with the square ZoomOut too (ablation; by default a part of
+    /// less than 90 % of the reference's area gets the partial, rectangular ZoomOut).
+    #[arg(long)]
+    pub zoomout_square: bool,
 }
 
 impl EvalArgs {
@@ -203,6 +207,7 @@ impl EvalArgs {
         let on = self.zoomout || (zoomout_default && !self.no_zoomout);
         shapeforest::regularizer::RegularizerParams {
             zoomout: on.then(|| self.zoomout_params()),
+            partial_zoomout: !self.zoomout_square,
             ..Default::default()
         }
     }

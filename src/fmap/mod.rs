@@ -24,7 +24,9 @@ use thiserror::Error;
 
 use crate::spectral::Spectrum;
 
+mod partial;
 mod sampled;
+pub use partial::{partial_basis_size, point_to_point_partial, zoomout_partial_on_samples};
 pub use sampled::{point_to_point_in_cells, zoomout_on_samples, CellBalls, SampleCells, ZoomOutSchedule};
 
 /// A functional-map computation failed.

@@ -29,6 +29,7 @@ mod flip;
 mod growth;
 mod orientation;
 mod pair;
+mod partial;
 mod refine;
 mod scan;
 mod smoothing;
@@ -42,6 +43,7 @@ use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
 pub use pair::{invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams};
+pub use partial::{partial_area_ratio, refine_zoomout_partial, PARTIAL_AREA_RATIO};
 pub use refine::{cell_balls, map_distortion, refine_zoomout, sample_cells};
 pub use scan::ScanPart;
 
@@ -323,6 +325,10 @@ pub struct RegularizerParams {
     pub growth: Option<AnchorGrowthParams>,
     /// Optional ZoomOut refinement after the solve. Default off.
     pub zoomout: Option<ZoomOutParams>,
+    /// Refine an open part of the reference (less than [`PARTIAL_AREA_RATIO`] of its area) with
+    /// the partial ZoomOut ([`refine_zoomout_partial`]: rectangular maps whose test basis grows
+    /// with the part's spectrum) instead of the square one. Default on.
+    pub partial_zoomout: bool,
     /// Repair of mirrored parts of the grown map (before ZoomOut) when the reference carries
     /// its symmetry ([`PreparedShape::symmetry`]): where the map's smoothed orientation
     /// ([`smoothed_orientation`]) is below minus this threshold, images are replaced by their
@@ -345,6 +351,7 @@ impl Default for RegularizerParams {
             heat: HeatParams::default(),
             growth: Some(AnchorGrowthParams::default()),
             zoomout: None,
+            partial_zoomout: true,
             unflip: Some(0.2),
             spectral_maps: false,
         }
@@ -739,13 +746,22 @@ pub fn dense_map(
     let (map, grown_map) = match &params.zoomout {
         Some(z) => {
             let t0 = Instant::now();
-            let mut refined = refine_zoomout(test, reference, &map, z)?;
+            // An open part of the reference gets the partial (rectangular) ZoomOut.
+            let partial = params.partial_zoomout && partial_area_ratio(test, reference).is_some();
+            let zoom = |m: &[usize]| {
+                if partial {
+                    refine_zoomout_partial(test, reference, m, z)
+                } else {
+                    refine_zoomout(test, reference, m, z)
+                }
+            };
+            let mut refined = zoom(&map)?;
             // ZoomOut's map is smooth, so its orientation tells mirrored limbs more clearly than
             // the grown map's: repair them and refine once more.
             if let (Some(threshold), Some(symmetry), Some(r)) = (params.unflip, &reference.symmetry, &refined)
             {
                 if let Some(u) = unflip(&test.mesh, &reference.mesh, r, symmetry, threshold) {
-                    refined = refine_zoomout(test, reference, &u.map, z)?.or(Some(u.map));
+                    refined = zoom(&u.map)?.or(Some(u.map));
                 }
             }
             timings.zoomout_s = t0.elapsed().as_secs_f64();

@@ -1,0 +1,147 @@
+//! The ZoomOut refinement (step 8) for a partial scan: rectangular functional maps whose test
+//! basis grows with the part's spectrum ([`crate::fmap::zoomout_partial_on_samples`]), used
+//! instead of [`super::refine_zoomout`] when the test shape is an open part of less than
+//! [`PARTIAL_AREA_RATIO`] of the reference's area.
+
+use super::{map_distortion, sample_cells, PreparedShape, RegularizerError as Error, ZoomOutParams};
+use crate::{
+    fmap::{point_to_point_partial, zoomout_partial_on_samples, ZoomOutSchedule},
+    geodesic::farthest_point_sampling_euclidean,
+};
+
+/// A test shape with boundary and less than this fraction of the reference's area is refined as
+/// a part ([`refine_zoomout_partial`]); above it (a scan with small holes) the square ZoomOut is
+/// used, as for a complete scan.
+pub const PARTIAL_AREA_RATIO: f64 = 0.9;
+
+/// The area of `test` over the reference's when `test` is an open part of it (it has boundary
+/// and less than [`PARTIAL_AREA_RATIO`] of the area; the scan is taken to be at the reference's
+/// scale, as [`super::normalising_area`] does), `None` otherwise.
+pub fn partial_area_ratio(test: &PreparedShape, reference: &PreparedShape) -> Option<f64> {
+    let ratio = test.mesh.surface_area() / reference.mesh.surface_area();
+    (ratio.is_finite()
+        && ratio > 0.0
+        && ratio < PARTIAL_AREA_RATIO
+        && test.mesh.summary().n_boundary_loops > 0)
+        .then_some(ratio)
+}
+
+/// ZoomOut of `map` (test vertex → reference vertex) for a partial test shape, by `params`
+/// (the schedule counts reference eigenfunctions; `radius` is not used: the point map is
+/// searched over the whole reference), read back on every test vertex; `None` when the check of
+/// `params.check_samples` found it farther from an isometry than `map`.
+pub fn refine_zoomout_partial(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    map: &[usize],
+    params: &ZoomOutParams,
+) -> Result<Option<Vec<usize>>, Error> {
+    // The shapes' ZoomOut bases (more eigenpairs than the descriptors' when they carry them).
+    let (test_basis, reference_basis) = (test.zoomout_basis(), reference.zoomout_basis());
+    let k_final = params.k_final.min(reference_basis.k());
+    let schedule = ZoomOutSchedule { k_start: params.k_start.min(k_final), k_final, step: params.step };
+    let test_cells = sample_cells(&test.mesh, params.samples)?;
+    let reference_cells = sample_cells(&reference.mesh, params.samples)?;
+    let c = zoomout_partial_on_samples(
+        test_basis,
+        &test_cells,
+        reference_basis,
+        &reference_cells,
+        map,
+        schedule,
+    )?;
+    let refined = point_to_point_partial(test_basis, reference_basis, &reference_cells, c.as_ref())?;
+    if params.check_samples == 0 {
+        return Ok(Some(refined));
+    }
+    let samples = farthest_point_sampling_euclidean(
+        &test.mesh,
+        params.check_samples.min(test.mesh.n_vertices()),
+        None,
+    )?;
+    let fields = test.heat.distances_from_many(&samples)?;
+    let before = map_distortion(reference, &fields, &samples, test.sqrt_area(), map)?;
+    let after = map_distortion(reference, &fields, &samples, test.sqrt_area(), &refined)?;
+    Ok((after <= before).then_some(refined))
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use rand::{Rng, SeedableRng};
+
+    use super::*;
+    use crate::{
+        fmap::partial_basis_size,
+        geodesic::HeatParams,
+        mesh::{perturb, Perturbation},
+        regularizer::{normalising_area, refine_zoomout},
+        spectral::dense_spectrum,
+        synth::icosphere,
+    };
+
+    /// An ellipsoid (distinct axes, so that its low eigenfunctions are not degenerate), and a
+    /// cropped part of it (about half) with the ellipsoid vertex of each part vertex.
+    fn ellipsoid_and_part() -> (PreparedShape, PreparedShape, Vec<usize>) {
+        let mut mesh = icosphere(3, 1.0);
+        for v in &mut mesh.vertices {
+            v[1] *= 1.3;
+            v[2] *= 1.7;
+        }
+        let p = perturb(&mesh, &[Perturbation::Crop { radius: 0.3 }], 11).unwrap();
+        let area = mesh.surface_area();
+        let whole = Arc::new(dense_spectrum(&mesh, 40).unwrap());
+        let part_spectrum =
+            dense_spectrum(&p.mesh, 40).unwrap().renormalised(normalising_area(&p.mesh, area));
+        let reference = PreparedShape::new(Arc::new(mesh), whole, HeatParams::default()).unwrap();
+        let part =
+            PreparedShape::new(Arc::new(p.mesh), Arc::new(part_spectrum), HeatParams::default()).unwrap();
+        (part, reference, p.kept)
+    }
+
+    #[test]
+    fn a_part_is_refined_with_a_slanted_map_and_beats_the_square_one() {
+        let (part, reference, truth) = ellipsoid_and_part();
+        let ratio = partial_area_ratio(&part, &reference).expect("an open part of the ellipsoid");
+        assert!(ratio > 0.2 && ratio < 0.8, "{ratio}");
+        // The part's basis grows about as the area ratio times the reference's.
+        let km = partial_basis_size(&part.spectrum, &reference.spectrum, 40);
+        assert!((km as f64) < 0.9 * 40.0 && (km as f64) > 0.3 * ratio * 40.0, "{km} for ratio {ratio}");
+        // Start from every part vertex sent to a random neighbour of its true image.
+        let n_ref = reference.mesh.n_vertices();
+        let mut neighbours = vec![Vec::new(); n_ref];
+        for f in &reference.mesh.faces {
+            for (a, b) in [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])] {
+                neighbours[a].push(b);
+                neighbours[b].push(a);
+            }
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let noisy: Vec<usize> = truth
+            .iter()
+            .map(|&t| {
+                let t = neighbours[t][rng.random_range(0..neighbours[t].len())];
+                neighbours[t][rng.random_range(0..neighbours[t].len())]
+            })
+            .collect();
+        let params =
+            ZoomOutParams { k_start: 10, k_final: 40, step: 3, samples: 100_000, ..Default::default() };
+        let score = |map: &[usize]| {
+            map.iter().zip(&truth).filter(|(a, b)| a == b).count() as f64 / truth.len() as f64
+        };
+        let before = score(&noisy);
+        let partial = refine_zoomout_partial(&part, &reference, &noisy, &params).unwrap().unwrap();
+        let square = refine_zoomout(&part, &reference, &noisy, &params).unwrap().unwrap();
+        let (p, s) = (score(&partial), score(&square));
+        eprintln!("exact: start {before:.3}, partial {p:.3}, square {s:.3}");
+        assert!(p > 0.5, "partial ZoomOut maps {p:.3} of the part exactly");
+        assert!(p > s + 0.05, "partial {p:.3} against square {s:.3}");
+    }
+
+    #[test]
+    fn a_complete_shape_is_not_a_part() {
+        let (_, reference, _) = ellipsoid_and_part();
+        assert_eq!(partial_area_ratio(&reference, &reference), None);
+    }
+}
