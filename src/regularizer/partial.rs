@@ -3,11 +3,8 @@
 //! instead of [`super::refine_zoomout`] when the test shape is an open part of less than
 //! [`PARTIAL_AREA_RATIO`] of the reference's area.
 
-use super::{map_distortion, sample_cells, PreparedShape, RegularizerError as Error, ZoomOutParams};
-use crate::{
-    fmap::{point_to_point_partial, zoomout_partial_on_samples, ZoomOutSchedule},
-    geodesic::farthest_point_sampling_euclidean,
-};
+use super::{sample_cells, PreparedShape, RegularizerError as Error, ZoomOutParams};
+use crate::fmap::{point_to_point_partial, zoomout_partial_on_samples, ZoomOutSchedule};
 
 /// A test shape with boundary and less than this fraction of the reference's area is refined as
 /// a part ([`refine_zoomout_partial`]); above it (a scan with small holes) the square ZoomOut is
@@ -51,18 +48,7 @@ pub fn refine_zoomout_partial(
         schedule,
     )?;
     let refined = point_to_point_partial(test_basis, reference_basis, &reference_cells, c.as_ref())?;
-    if params.check_samples == 0 {
-        return Ok(Some(refined));
-    }
-    let samples = farthest_point_sampling_euclidean(
-        &test.mesh,
-        params.check_samples.min(test.mesh.n_vertices()),
-        None,
-    )?;
-    let fields = test.heat.distances_from_many(&samples)?;
-    let before = map_distortion(reference, &fields, &samples, test.sqrt_area(), map)?;
-    let after = map_distortion(reference, &fields, &samples, test.sqrt_area(), &refined)?;
-    Ok((after <= before).then_some(refined))
+    super::refine::kept_if_closer_to_isometry(test, reference, map, refined, params.check_samples)
 }
 
 #[cfg(test)]

@@ -141,15 +141,23 @@ pub fn refine_zoomout(
     let restrict = balls.as_ref().map(|b| (b, map));
     let refined =
         point_to_point_in_cells(test_basis, reference_basis, &reference_cells, restrict, c.as_ref())?;
-    if params.check_samples == 0 {
+    kept_if_closer_to_isometry(test, reference, map, refined, params.check_samples)
+}
+
+/// `refined`, unless `check_samples` (> 0) farthest-point samples find it farther from an
+/// isometry than `map` ([`map_distortion`]); `check_samples = 0` keeps it unchecked.
+pub(super) fn kept_if_closer_to_isometry(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    map: &[usize],
+    refined: Vec<usize>,
+    check_samples: usize,
+) -> Result<Option<Vec<usize>>, Error> {
+    if check_samples == 0 {
         return Ok(Some(refined));
     }
-    // Keep the refinement only if it brings the map closer to an isometry.
-    let samples = farthest_point_sampling_euclidean(
-        &test.mesh,
-        params.check_samples.min(test.mesh.n_vertices()),
-        None,
-    )?;
+    let samples =
+        farthest_point_sampling_euclidean(&test.mesh, check_samples.min(test.mesh.n_vertices()), None)?;
     let fields = test.heat.distances_from_many(&samples)?;
     let before = map_distortion(reference, &fields, &samples, test.sqrt_area(), map)?;
     let after = map_distortion(reference, &fields, &samples, test.sqrt_area(), &refined)?;
