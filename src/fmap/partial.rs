@@ -19,7 +19,6 @@
 //! simply never chosen). With `k_M = k_R` at every step this is the square ZoomOut.
 
 use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par, Side};
-use rayon::prelude::*;
 
 use super::{basis, check_basis, nearest_rows, FmapError, SampleCells, ZoomOutSchedule};
 use crate::spectral::Spectrum;
@@ -166,19 +165,5 @@ pub fn point_to_point_partial(
     let sample_points =
         Mat::from_fn(reference_cells.samples.len(), km, |i, j| points[(reference_cells.samples[i], j)]);
     let coarse = nearest_rows(queries, sample_points.as_ref());
-    let mut out = vec![0usize; test.n_vertices];
-    out.par_iter_mut().enumerate().for_each(|(m, slot)| {
-        let mut best = f64::INFINITY;
-        for &cell in reference_cells.neighbours_of(coarse[m]) {
-            for &r in reference_cells.members_of(cell as usize) {
-                let r = r as usize;
-                let d: f64 = (0..km).map(|j| (queries[(m, j)] - points[(r, j)]).powi(2)).sum();
-                if d < best {
-                    best = d;
-                    *slot = r;
-                }
-            }
-        }
-    });
-    Ok(out)
+    Ok(super::sampled::nearest_in_cells(queries, points.as_ref(), reference_cells, &coarse))
 }

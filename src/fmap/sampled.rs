@@ -307,7 +307,20 @@ pub fn point_to_point_in_cells(
             })
         }
     };
-    let mut out = vec![0usize; test.n_vertices];
+    Ok(nearest_in_cells(queries, points.as_ref(), reference_cells, &coarse))
+}
+
+/// For each query row `m`, the reference vertex whose row of `points` is nearest among the
+/// vertices of cell `coarse[m]` and its neighbouring cells (the fine step of a point map read
+/// back through [`SampleCells`]).
+pub(super) fn nearest_in_cells(
+    queries: MatRef<'_, f64>,
+    points: MatRef<'_, f64>,
+    reference_cells: &SampleCells,
+    coarse: &[usize],
+) -> Vec<usize> {
+    let k = queries.ncols();
+    let mut out = vec![0usize; queries.nrows()];
     out.par_iter_mut().enumerate().for_each(|(m, slot)| {
         let mut best = f64::INFINITY;
         for &cell in reference_cells.neighbours_of(coarse[m]) {
@@ -321,7 +334,7 @@ pub fn point_to_point_in_cells(
             }
         }
     });
-    Ok(out)
+    out
 }
 
 /// Checks that `map` names reference vertices and that `balls` has one ball per cell.
