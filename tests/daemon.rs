@@ -255,3 +255,56 @@ fn a_scan_with_holes_and_a_detached_piece_is_matched_on_its_part() {
     );
     d.stop();
 }
+
+/// `NAME.sym.vts` beside `NAME.vts` in `labeled/` (the mirror image of every row, as remeshed
+/// TOSCA and FAUST ship it) travels with its shape: the model stores the reference's left/right
+/// symmetry (for the mirror repair), the file is kept in `training/`, and one with the wrong row
+/// count gets its shape rejected with a report naming the file.
+#[test]
+fn a_sym_vts_in_labeled_gives_the_daemons_model_its_reference_symmetry() {
+    let shapes = common::labels::shuffled_family(7);
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let mut d = Daemon::start(&data, false);
+    let labeled = data.join("labeled");
+    wait_until(&mut d, "the data folder", || labeled.is_dir());
+    for (i, s) in shapes.iter().enumerate().take(6) {
+        // shape5's mirror table is short by a row.
+        let mirrored = if i == 5 { &s.mirrored[1..] } else { &s.mirrored[..] };
+        std::fs::write(labeled.join(format!("shape{i}.vts")), common::labels::vts(&s.truth)).unwrap();
+        std::fs::write(labeled.join(format!("shape{i}.sym.vts")), common::labels::vts(mirrored)).unwrap();
+        drop_mesh(&labeled, &format!("shape{i}.off"), &s.mesh);
+    }
+    wait_until(&mut d, "a model", || !manifests(&data).is_empty());
+    let report = data.join("rejected/shape5.error.json");
+    wait_until(&mut d, "the rejection of shape5", || report.is_file());
+    let text = std::fs::read_to_string(&report).unwrap();
+    assert!(text.contains("shape5.sym.vts") && text.contains("rows"), "{text}");
+    assert!(files_in(&data.join("rejected")).contains(&"shape5.sym.vts".to_string()));
+
+    let manifest = manifests(&data).last().unwrap().clone();
+    assert_eq!(manifest["training_shapes"].as_array().unwrap().len(), 5, "{manifest}");
+    let name = manifest["reference"].as_str().unwrap().to_string();
+    let r: usize = name.strip_prefix("shape").unwrap().parse().unwrap();
+    let training = files_in(&data.join("training"));
+    for i in 0..5 {
+        assert!(training.contains(&format!("shape{i}.sym.vts")), "kept with its shape: {training:?}");
+    }
+    assert!(files_in(&labeled).is_empty(), "nothing left behind: {:?}", files_in(&labeled));
+    assert!(d.log().contains("left/right symmetry from its .sym.vts"), "{}", d.log());
+
+    // The model file carries the reference's self-map, and it is the one the table lists.
+    let model = data.join("models").join(manifest["model_file"].as_str().unwrap());
+    let forest = shapeforest::forest::RandomForest::load(&model).unwrap();
+    let symmetry = forest.reference().and_then(|x| x.symmetry_map()).expect("a stored symmetry");
+    let s = &shapes[r];
+    let agree = s.truth.iter().zip(&s.mirrored).filter(|&(&v, &m)| symmetry[v] == m).count();
+    assert!(agree * 100 >= 95 * s.truth.len(), "{agree} of {} rows mirrored as listed", s.truth.len());
+
+    // Maps made with it are right.
+    drop_mesh(&data.join("incoming"), "scan6.off", &shapes[6].mesh);
+    wait_until(&mut d, "a result", || result_dirs(&data).contains(&"scan6".to_string()));
+    let acc = common::labels::accuracy(&read_map(&data.join("matched/scan6"), "scan6"), &shapes[6], s);
+    assert!(acc >= 0.8, "scan6 → {name}: {:.1} % within 0.05", 100.0 * acc);
+    d.stop();
+}

@@ -62,9 +62,10 @@ pub use model::{
 pub use report::{MapQuality, MatchReport};
 pub use shutdown::Shutdown;
 pub use store::{
-    atomic_write, defer, is_claimed, is_mesh_file, is_transient_file, label_map_text, label_sidecar,
-    latest_manifest, latest_model, move_file, natural_key, read_labels, reject, reject_or_defer, unique_path,
-    DataDir, InputKind, ModelManifest, Recovery,
+    atomic_write, defer, is_claimed, is_mesh_file, is_symmetry_file, is_transient_file, label_map_text,
+    label_sidecar, latest_manifest, latest_model, move_file, natural_key, read_labels, reject,
+    reject_or_defer, sidecar_stem, sidecar_suffix, symmetry_sidecar, unique_path, DataDir, InputKind,
+    ModelManifest, Recovery,
 };
 pub use transport::{
     Delivery, Dynamic, ErasedTransport, InProcess, Output, Payload, Receiver, Sender, Settle, Settled,

@@ -104,7 +104,7 @@ impl DataDir {
         let stem = super::message::shape_stem(&target);
         // Label maps and TOSCA `.tri` files first: the watcher takes the mesh with them.
         for c in companions.iter().filter(|c| c.is_file()) {
-            let ext = file_name(c).strip_prefix(&super::message::shape_stem(c)).unwrap_or("").to_string();
+            let ext = sidecar_suffix(c);
             move_file(c, &self.arrivals(kind).join(format!("{stem}{ext}")))?;
         }
         move_file(claimed, &target)?;
@@ -307,6 +307,44 @@ pub fn is_transient_file(path: &Path) -> bool {
     name.starts_with('.')
         || name.ends_with('~')
         || [".part", ".partial", ".tmp", ".crdownload", ".download", ".swp"].iter().any(|e| name.ends_with(e))
+}
+
+/// Whether a file is a `NAME.sym.vts` (any case): the left/right mirror of every row of
+/// `NAME.vts` (row `k`: the 1-based vertex at the mirror image of row `k`'s), which travels with
+/// the mesh `NAME` and its `NAME.vts` and gives a reference its symmetry.
+///
+/// ```
+/// use std::path::Path;
+/// use shapeforest::pipeline::is_symmetry_file;
+/// assert!(is_symmetry_file(Path::new("labeled/cat0.sym.vts")));
+/// assert!(!is_symmetry_file(Path::new("labeled/cat0.vts")));
+/// ```
+pub fn is_symmetry_file(path: &Path) -> bool {
+    file_name(path).to_ascii_lowercase().ends_with(".sym.vts")
+}
+
+/// The stem of the shape a sidecar file belongs to: `NAME` for `NAME.sym.vts`, else
+/// [`shape_stem`](super::message::shape_stem) (`NAME` for `NAME.vts`, `NAME.tri`, …).
+pub fn sidecar_stem(path: &Path) -> String {
+    let name = file_name(path);
+    if is_symmetry_file(path) {
+        return name[..name.len() - ".sym.vts".len()].to_string();
+    }
+    super::message::shape_stem(path)
+}
+
+/// The part of a sidecar's file name after its shape's stem (`.vts`, `.labels`, `.tri`,
+/// `.sym.vts`): the name it takes beside a renamed mesh is the new stem followed by it.
+pub fn sidecar_suffix(path: &Path) -> String {
+    let name = file_name(path);
+    name.strip_prefix(&sidecar_stem(path)).unwrap_or("").to_string()
+}
+
+/// The `NAME.sym.vts` beside a mesh `NAME.*`, if there is one.
+pub fn symmetry_sidecar(mesh: &Path) -> Option<PathBuf> {
+    let dir = mesh.parent().unwrap_or(Path::new("."));
+    let p = dir.join(format!("{}.sym.vts", super::message::shape_stem(mesh)));
+    p.is_file().then_some(p)
 }
 
 /// The label map that goes with a mesh: `NAME.labels` (per vertex) or `NAME.vts` (per label),

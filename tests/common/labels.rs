@@ -14,6 +14,9 @@ pub struct Shuffled {
     pub mesh: Mesh,
     /// `truth[label]` = its vertex.
     pub truth: Vec<usize>,
+    /// `mirrored[label]` = the vertex at the mirror image of `truth[label]` (the family's exact
+    /// left/right symmetry), as a `.sym.vts` lists it.
+    pub mirrored: Vec<usize>,
 }
 
 /// Shapes of the synthetic family, each with its vertices shuffled; label `k` is template vertex
@@ -34,7 +37,11 @@ pub fn shuffled_family(n: usize) -> Vec<Shuffled> {
         .enumerate()
         .map(|(i, m)| {
             let (mesh, new_index) = shuffle_vertices(m, 100 + i as u64).unwrap();
-            Shuffled { mesh, truth: site.iter().map(|&v| new_index[v]).collect() }
+            Shuffled {
+                mesh,
+                truth: site.iter().map(|&v| new_index[v]).collect(),
+                mirrored: site.iter().map(|&v| new_index[fam.symmetry[v]]).collect(),
+            }
         })
         .collect()
 }

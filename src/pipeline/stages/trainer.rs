@@ -29,12 +29,12 @@ use crate::{
         model::{load_stored, LiveModel, ModelState},
         shutdown::Shutdown,
         store::{
-            atomic_write, defer, is_claimed, label_map_text, latest_manifest, move_file, natural_key,
-            prune_models, read_labels, reject_or_defer, save_model_version, stored_shapes, unix_now, DataDir,
-            InputKind, ModelManifest,
+            atomic_write, defer, is_claimed, is_symmetry_file, label_map_text, latest_manifest, move_file,
+            natural_key, prune_models, read_labels, reject_or_defer, save_model_version, sidecar_suffix,
+            stored_shapes, symmetry_sidecar, unix_now, DataDir, InputKind, ModelManifest,
         },
     },
-    regularizer::PreparedShape,
+    regularizer::{symmetry_from_pairs, PreparedShape},
     spectral::{SpectrumCache, SpectrumParams},
 };
 
@@ -182,7 +182,39 @@ fn label_rows(job: &Job, n_vertices: usize) -> Option<Vec<Option<u32>>> {
     crate::forest::read_per_label_rows(std::io::BufReader::new(file), true, n_vertices).ok()
 }
 
-/// A reference chosen for a first model: name, prepared shape, label → vertex table.
+/// The rows of a job's `NAME.sym.vts` (row `k`: the vertex at the mirror image of row `k` of
+/// its `NAME.vts`), checked against the `.vts` rows: `Ok(None)` without one, `Err` (the reason,
+/// naming the file) when it cannot be read, is too large, or has another row count.
+fn mirror_rows(
+    job: &Job,
+    rows: Option<&Vec<Option<u32>>>,
+    n_vertices: usize,
+    limits: &crate::limits::Limits,
+) -> Result<Option<Vec<Option<u32>>>, String> {
+    let Some(path) = job.companions.iter().find(|c| is_symmetry_file(c)) else { return Ok(None) };
+    let shown = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let Some(rows) = rows else {
+        return Err(format!(
+            "{shown}: a .sym.vts mirrors the rows of a NAME.vts label map, but this shape's labels are not a .vts"
+        ));
+    };
+    let bytes = crate::mesh::read_file_limited(path, limits.max_file_bytes, false)
+        .map_err(|e| format!("{shown}: {e}"))?;
+    let mirror = crate::forest::read_per_label_rows(bytes.as_slice(), true, n_vertices)
+        .map_err(|e| format!("{shown}: {e}"))?;
+    if mirror.len() != rows.len() {
+        return Err(format!(
+            "{shown} has {} rows but {}.vts has {}: a .sym.vts lists the mirror of every row",
+            mirror.len(),
+            job.name,
+            rows.len()
+        ));
+    }
+    Ok(Some(mirror))
+}
+
+/// A reference chosen for a first model: name, prepared shape (with its left/right symmetry
+/// when its `.sym.vts` gave one), label → vertex table.
 type ChosenReference = (String, Arc<PreparedShape>, Arc<Vec<usize>>);
 
 /// Learns from labelled shapes and publishes new model versions.
@@ -305,7 +337,7 @@ impl TrainerSink {
                 let lab_ext = lab.extension().map(|e| e.to_string_lossy().into_owned()).unwrap_or_default();
                 move_file(lab, &dir.join(format!("{}.{lab_ext}", job.name)))?;
                 for c in &job.companions {
-                    let n = name(c).replacen(&shape_stem(c), &job.name, 1);
+                    let n = format!("{}{}", job.name, sidecar_suffix(c));
                     move_file(c, &dir.join(n))?;
                 }
                 move_file(src, &dir.join(mesh_name))?;
@@ -353,6 +385,7 @@ impl TrainerSink {
         &self,
         accepted: &[(Job, SpectralShape, TrainingShape)],
         rows: &HashMap<u64, Vec<Option<u32>>>,
+        mirrors: &HashMap<u64, Vec<Option<u32>>>,
         n_labels: usize,
     ) -> Result<ChosenReference, String> {
         if n_labels == 0 {
@@ -397,8 +430,23 @@ impl TrainerSink {
                 t.unused
             );
         }
-        let prepared = PreparedShape::new(shape.shape.mesh.clone(), ts.spectrum.clone(), self.heat)
+        let mut prepared = PreparedShape::new(shape.shape.mesh.clone(), ts.spectrum.clone(), self.heat)
             .map_err(|e| e.to_string())?;
+        // Its `.sym.vts` (checked on arrival) gives the reference its left/right symmetry, with
+        // which the regulariser repairs mirrored maps.
+        if let (Some(own), Some(mirror)) = (rows.get(&job.id), mirrors.get(&job.id)) {
+            let pairs: Vec<(usize, usize)> =
+                own.iter().zip(mirror).filter_map(|(a, b)| Some(((*a)? as usize, (*b)? as usize))).collect();
+            let symmetry = symmetry_from_pairs(&shape.shape.mesh, &pairs)
+                .map_err(|e| format!("{}.sym.vts: {e}", job.name))?;
+            prepared = prepared.with_symmetry(symmetry.into()).map_err(|e| e.to_string())?;
+            tracing::info!(
+                reference = %job.name,
+                "reference `{}`: left/right symmetry from its .sym.vts ({} mirror pairs)",
+                job.name,
+                pairs.len()
+            );
+        }
         Ok((job.name.clone(), Arc::new(prepared), Arc::new(t.table)))
     }
 
@@ -450,6 +498,7 @@ impl TrainerSink {
         };
         // Validate each new shape alone, so one bad shape is rejected by name.
         let mut accepted = Vec::new();
+        let mut mirrors: HashMap<u64, Vec<Option<u32>>> = HashMap::new();
         for (job, shape) in fresh {
             let ts = TrainingShape {
                 name: job.name.clone(),
@@ -464,6 +513,13 @@ impl TrainerSink {
                 )),
                 _ => TrainingSet::new(vec![ts.clone()], n_labels).map(|_| ()).map_err(|e| e.to_string()),
             };
+            let check = check.and_then(|()| {
+                let m = mirror_rows(&job, rows.get(&job.id), shape.shape.mesh.n_vertices(), &self.limits)?;
+                if let Some(m) = m {
+                    mirrors.insert(job.id, m);
+                }
+                Ok(())
+            });
             match check {
                 Ok(()) => accepted.push((job, shape, ts)),
                 Err(e) => {
@@ -478,7 +534,7 @@ impl TrainerSink {
         // labels (or the configured one), with the labels it lacks placed through the others.
         let (reference_name, reference, table) = match &current {
             Some(m) => (m.reference_name.clone(), m.reference.clone(), m.label_to_vertex.clone()),
-            None => match self.choose_reference(&accepted, &rows, n_labels) {
+            None => match self.choose_reference(&accepted, &rows, &mirrors, n_labels) {
                 Ok(chosen) => chosen,
                 Err(why) => {
                     // Nothing can be learnt from this set: say so for every shape of it.
@@ -519,7 +575,10 @@ impl TrainerSink {
             .map_err(|e| Error::Training(e.to_string()))?;
         if forest.reference().is_none() {
             let table = crate::forest::LabelTable { table: table.to_vec(), exact: 0, filled: 0, unused: 0 };
-            let r = ModelReference::new(&reference_name, &reference.mesh, &table);
+            let mut r = ModelReference::new(&reference_name, &reference.mesh, &table);
+            if let Some(s) = reference.symmetry.as_deref() {
+                r = r.with_symmetry(s)?;
+            }
             forest = forest.with_reference(r)?;
         }
         let on_disk = latest_manifest(&self.data.models()).map_or(0, |m| m.version);
@@ -588,6 +647,10 @@ impl Sink for TrainerSink {
                 Ok((mesh, labels, spectrum)) => {
                     let mut job = Job::generated(0, &s.name);
                     job.source = Some(s.mesh.clone());
+                    // Its `.vts` rows and `.sym.vts` as when it arrived, so that the reference
+                    // and its symmetry come out the same.
+                    job.labels_file = Some(s.labels.clone());
+                    job.companions.extend(symmetry_sidecar(&s.mesh));
                     let shape = Shape { mesh, labels: Some(Arc::new(labels)) };
                     self.pending.push((job, SpectralShape::whole(shape, Arc::new(spectrum))));
                 }

@@ -21,8 +21,8 @@ use crate::{
         error::{Error, IoAt},
         message::{shape_stem, Envelope, Failure, InputFile, Job, LabelSpec},
         store::{
-            is_mesh_file, is_transient_file, label_sidecar, move_file, read_dir_sorted, unique_path, DataDir,
-            InputKind,
+            is_mesh_file, is_symmetry_file, is_transient_file, label_sidecar, move_file, read_dir_sorted,
+            sidecar_stem, sidecar_suffix, symmetry_sidecar, unique_path, DataDir, InputKind,
         },
     },
 };
@@ -233,9 +233,7 @@ impl WatchSource {
         let stem = shape_stem(&target);
         let mut moved = Vec::new();
         for w in with {
-            let wname = w.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            let ext = wname.strip_prefix(&shape_stem(w)).unwrap_or("").to_string();
-            let t = dir.join(format!("{stem}{ext}"));
+            let t = dir.join(format!("{stem}{}", sidecar_suffix(w)));
             move_file(w, &t)?;
             moved.push(t);
         }
@@ -411,8 +409,8 @@ impl WatchSource {
             p.extension().is_some_and(|e| e.eq_ignore_ascii_case("labels") || e.eq_ignore_ascii_case("vts"))
         };
         if kind == InputKind::Labeled && is_label_map(path) {
-            // Label maps travel with their mesh.
-            let stem = shape_stem(path);
+            // Label maps (and a `NAME.sym.vts` mirror table) travel with their mesh.
+            let stem = sidecar_stem(path);
             let dir = path.parent().unwrap_or(Path::new("."));
             let has_mesh = read_dir_sorted(dir)
                 .unwrap_or_default()
@@ -443,6 +441,14 @@ impl WatchSource {
                     return true;
                 }
             }
+            // The mirror table `NAME.sym.vts`, when there is one, goes with them (the trainer
+            // checks it against `NAME.vts`).
+            if let Some(sym) = symmetry_sidecar(path) {
+                if !settled(&sym, seen) {
+                    return true;
+                }
+                with.push(sym);
+            }
         }
         if is_mesh && is_tosca_vert(path) {
             match tosca_sibling(path) {
@@ -472,7 +478,7 @@ impl WatchSource {
         }
         let (claimed_path, moved) = claimed;
         let (claimed_labels, companions): (Vec<PathBuf>, Vec<PathBuf>) =
-            moved.into_iter().partition(|p| is_label_map(p));
+            moved.into_iter().partition(|p| is_label_map(p) && !is_symmetry_file(p));
         let claimed_labels = claimed_labels.into_iter().next();
         let mut job = Job::for_file(out.next_job_id(), &claimed_path, claimed_labels.clone());
         job.companions = companions;
