@@ -18,9 +18,13 @@
 //! vertex looks for its nearest reference row; reference points outside the part's image are
 //! simply never chosen). With `k_M = k_R` at every step this is the square ZoomOut.
 
-use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par, Side};
+use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par};
 
-use super::{basis, check_basis, nearest_rows, FmapError, SampleCells, ZoomOutSchedule};
+use super::{
+    basis, check_basis, nearest_rows,
+    sampled::{basis_rows, check_map, check_sizes, SampledFit},
+    FmapError, SampleCells, ZoomOutSchedule,
+};
 use crate::spectral::Spectrum;
 
 /// How many eigenfunctions of the part (`test`) go with the first `k_ref` eigenfunctions of the
@@ -55,75 +59,22 @@ pub fn zoomout_partial_on_samples(
     map: &[usize],
     schedule: ZoomOutSchedule,
 ) -> Result<Mat<f64>, FmapError> {
-    if schedule.step == 0 || schedule.k_start == 0 || schedule.k_start > schedule.k_final {
-        return Err(FmapError::InvalidParameter {
-            name: "zoomout",
-            reason: format!(
-                "needs 1 ≤ k_start ≤ k_final and step ≥ 1, got {}, {}, {}",
-                schedule.k_start, schedule.k_final, schedule.step
-            ),
-        });
-    }
+    schedule.check_steps()?;
     let kf = schedule.k_final;
     check_basis("reference", reference, kf)?;
     let kmf = partial_basis_size(test, reference, kf);
     check_basis("test", test, kmf)?;
-    if map.len() != test.n_vertices || test_cells.n_vertices() != test.n_vertices {
-        return Err(FmapError::SizeMismatch(format!(
-            "a map of {} and cells of {} vertices for a test shape of {}",
-            map.len(),
-            test_cells.n_vertices(),
-            test.n_vertices
-        )));
-    }
-    if reference_cells.n_vertices() != reference.n_vertices {
-        return Err(FmapError::SizeMismatch(format!(
-            "cells of {} vertices for a reference of {}",
-            reference_cells.n_vertices(),
-            reference.n_vertices
-        )));
-    }
-    if let Some(&r) = map.iter().find(|&&r| r >= reference.n_vertices) {
-        return Err(FmapError::SizeMismatch(format!(
-            "the map names reference vertex {r}, the reference has {}",
-            reference.n_vertices
-        )));
-    }
-    let rows = |s: &Spectrum, vs: &[usize], k: usize| {
-        let phi = basis(s, k);
-        Mat::from_fn(vs.len(), k, |i, j| phi[(vs[i], j)])
-    };
-    let phi_t = rows(test, &test_cells.samples, kmf);
-    let phi_r = rows(reference, &reference_cells.samples, kf);
-    let weights = test_cells.cell_areas(&test.mass);
-    let weighted = Mat::from_fn(phi_t.nrows(), kmf, |i, j| weights[i] * phi_t[(i, j)]);
-    let mut gram = Mat::<f64>::zeros(kmf, kmf);
-    matmul(gram.as_mut(), Accum::Replace, weighted.transpose(), phi_t.as_ref(), 1.0, Par::rayon(0));
+    check_sizes(test, test_cells, reference, reference_cells, map)?;
+    check_map(map, reference, None, reference_cells)?;
+    let phi_t = basis_rows(test, &test_cells.samples, kmf);
+    let phi_r = basis_rows(reference, &reference_cells.samples, kf);
     // C (k_M × k_R) minimising Σ_i w_i |Φ_M[s_i, :k_M] C − Φ_R[t_i, :k_R]|².
-    let fit = |n: usize, km: usize, kr: usize, target_rows: &dyn Fn(usize, usize) -> f64| {
-        let target = Mat::from_fn(n, kr, target_rows);
-        let mut rhs = Mat::<f64>::zeros(km, kr);
-        matmul(
-            rhs.as_mut(),
-            Accum::Replace,
-            weighted.subcols(0, km).transpose(),
-            target.as_ref(),
-            1.0,
-            Par::Seq,
-        );
-        let llt = gram.subrows(0, km).subcols(0, km).to_owned().llt(Side::Lower).map_err(|_| {
-            FmapError::InvalidParameter {
-                name: "zoomout samples",
-                reason: format!("{n} test samples are too few for {km} basis functions"),
-            }
-        })?;
-        Ok::<_, FmapError>(faer::linalg::solvers::Solve::solve(&llt, rhs.as_ref()))
-    };
+    let fit = SampledFit::new(phi_t.as_ref(), &test_cells.cell_areas(&test.mass));
     let first: Vec<usize> = test_cells.samples.iter().map(|&s| map[s]).collect();
     let phi_ref = basis(reference, kf);
     let mut k = schedule.k_start;
     let mut km = partial_basis_size(test, reference, k);
-    let mut c = fit(first.len(), km, k, &|i, j| phi_ref[(first[i], j)])?;
+    let mut c = fit.fit(km, k, &|i, j| phi_ref[(first[i], j)])?;
     loop {
         // Part samples onto reference samples: rows of Φ_M[:, :k_M] against Φ_R[:, :k_R] Cᵀ.
         let mut points = Mat::<f64>::zeros(phi_r.nrows(), km);
@@ -132,7 +83,7 @@ pub fn zoomout_partial_on_samples(
         let last = k == kf;
         k = (k + schedule.step).min(kf);
         km = partial_basis_size(test, reference, k);
-        c = fit(t.len(), km, k, &|i, j| phi_r[(t[i], j)])?;
+        c = fit.fit(km, k, &|i, j| phi_r[(t[i], j)])?;
         if last {
             return Ok(c);
         }

@@ -160,7 +160,8 @@ pub struct ZoomOutSchedule {
 }
 
 impl ZoomOutSchedule {
-    fn check(&self, test: &Spectrum, reference: &Spectrum) -> Result<(), FmapError> {
+    /// Checks the steps alone: `1 ≤ k_start ≤ k_final`, `step ≥ 1`.
+    pub(super) fn check_steps(&self) -> Result<(), FmapError> {
         if self.step == 0 || self.k_start == 0 || self.k_start > self.k_final {
             return Err(FmapError::InvalidParameter {
                 name: "zoomout",
@@ -170,8 +171,94 @@ impl ZoomOutSchedule {
                 ),
             });
         }
+        Ok(())
+    }
+
+    fn check(&self, test: &Spectrum, reference: &Spectrum) -> Result<(), FmapError> {
+        self.check_steps()?;
         check_basis("test", test, self.k_final)?;
         check_basis("reference", reference, self.k_final)
+    }
+}
+
+/// Checks that a map of the test shape and the cells of both shapes have the shapes' sizes.
+pub(super) fn check_sizes(
+    test: &Spectrum,
+    test_cells: &SampleCells,
+    reference: &Spectrum,
+    reference_cells: &SampleCells,
+    map: &[usize],
+) -> Result<(), FmapError> {
+    if map.len() != test.n_vertices || test_cells.n_vertices() != test.n_vertices {
+        return Err(FmapError::SizeMismatch(format!(
+            "a map of {} and cells of {} vertices for a test shape of {}",
+            map.len(),
+            test_cells.n_vertices(),
+            test.n_vertices
+        )));
+    }
+    if reference_cells.n_vertices() != reference.n_vertices {
+        return Err(FmapError::SizeMismatch(format!(
+            "cells of {} vertices for a reference of {}",
+            reference_cells.n_vertices(),
+            reference.n_vertices
+        )));
+    }
+    Ok(())
+}
+
+/// The rows `vertices` of the first `k` basis functions of `s` (`|vertices| × k`).
+pub(super) fn basis_rows(s: &Spectrum, vertices: &[usize], k: usize) -> Mat<f64> {
+    let phi = basis(s, k);
+    Mat::from_fn(vertices.len(), k, |i, j| phi[(vertices[i], j)])
+}
+
+/// The area-weighted least-squares fit of functional maps on the samples of a test shape, shared
+/// by every step of a ZoomOut: `fit(k_m, k_r, target)` is the `k_m × k_r` matrix `C` minimising
+/// `Σ_i w_i |Φ[i, :k_m] C − target_i|²` (`Φ` the samples' basis rows, `w_i` their cells' areas,
+/// `target_i` the `k_r` reference basis values of sample `i`'s image). The weighted Gram matrix
+/// is formed once at the largest size; its leading blocks serve every smaller one.
+pub(super) struct SampledFit {
+    /// `w_i Φ[i, j]`.
+    weighted: Mat<f64>,
+    /// `Φᵀ W Φ`.
+    gram: Mat<f64>,
+}
+
+impl SampledFit {
+    /// The fit for the samples' basis rows `phi` (one row per sample) and their `weights`.
+    pub(super) fn new(phi: MatRef<'_, f64>, weights: &[f64]) -> Self {
+        let weighted = Mat::from_fn(phi.nrows(), phi.ncols(), |i, j| weights[i] * phi[(i, j)]);
+        let mut gram = Mat::<f64>::zeros(phi.ncols(), phi.ncols());
+        matmul(gram.as_mut(), Accum::Replace, weighted.transpose(), phi, 1.0, Par::rayon(0));
+        Self { weighted, gram }
+    }
+
+    /// The `k_m × k_r` map whose target row `i` has entries `target(i, j)`, `j < k_r`.
+    pub(super) fn fit(
+        &self,
+        k_m: usize,
+        k_r: usize,
+        target: &dyn Fn(usize, usize) -> f64,
+    ) -> Result<Mat<f64>, FmapError> {
+        let n = self.weighted.nrows();
+        let target = Mat::from_fn(n, k_r, target);
+        let mut rhs = Mat::<f64>::zeros(k_m, k_r);
+        matmul(
+            rhs.as_mut(),
+            Accum::Replace,
+            self.weighted.subcols(0, k_m).transpose(),
+            target.as_ref(),
+            1.0,
+            Par::Seq,
+        );
+        let llt = self.gram.subrows(0, k_m).subcols(0, k_m).to_owned().llt(Side::Lower).map_err(|_| {
+            FmapError::InvalidParameter {
+                name: "zoomout samples",
+                reason: format!("{n} test samples are too few for {k_m} basis functions"),
+            }
+        })?;
+        Ok(faer::linalg::solvers::Solve::solve(&llt, rhs.as_ref()))
     }
 }
 
@@ -190,58 +277,17 @@ pub fn zoomout_on_samples(
     schedule: ZoomOutSchedule,
 ) -> Result<Mat<f64>, FmapError> {
     schedule.check(test, reference)?;
-    if map.len() != test.n_vertices || test_cells.n_vertices() != test.n_vertices {
-        return Err(FmapError::SizeMismatch(format!(
-            "a map of {} and cells of {} vertices for a test shape of {}",
-            map.len(),
-            test_cells.n_vertices(),
-            test.n_vertices
-        )));
-    }
-    if reference_cells.n_vertices() != reference.n_vertices {
-        return Err(FmapError::SizeMismatch(format!(
-            "cells of {} vertices for a reference of {}",
-            reference_cells.n_vertices(),
-            reference.n_vertices
-        )));
-    }
+    check_sizes(test, test_cells, reference, reference_cells, map)?;
     check_map(map, reference, balls, reference_cells)?;
     let kf = schedule.k_final;
-    let rows = |s: &Spectrum, vs: &[usize]| {
-        let phi = basis(s, kf);
-        Mat::from_fn(vs.len(), kf, |i, j| phi[(vs[i], j)])
-    };
-    let phi_t = rows(test, &test_cells.samples);
-    let phi_r = rows(reference, &reference_cells.samples);
-    // Weighted Gram matrix of the test samples; its leading blocks serve every k.
-    let weights = test_cells.cell_areas(&test.mass);
-    let weighted = Mat::from_fn(phi_t.nrows(), kf, |i, j| weights[i] * phi_t[(i, j)]);
-    let mut gram = Mat::<f64>::zeros(kf, kf);
-    matmul(gram.as_mut(), Accum::Replace, weighted.transpose(), phi_t.as_ref(), 1.0, Par::rayon(0));
-    let fit = |targets: &[usize], k: usize, target_rows: &dyn Fn(usize, usize) -> f64| {
-        let target = Mat::from_fn(targets.len(), k, target_rows);
-        let mut rhs = Mat::<f64>::zeros(k, k);
-        matmul(
-            rhs.as_mut(),
-            Accum::Replace,
-            weighted.subcols(0, k).transpose(),
-            target.as_ref(),
-            1.0,
-            Par::Seq,
-        );
-        let llt = gram.subrows(0, k).subcols(0, k).to_owned().llt(Side::Lower).map_err(|_| {
-            FmapError::InvalidParameter {
-                name: "zoomout samples",
-                reason: format!("{} test samples are too few for {k} basis functions", targets.len()),
-            }
-        })?;
-        Ok::<_, FmapError>(faer::linalg::solvers::Solve::solve(&llt, rhs.as_ref()))
-    };
+    let phi_t = basis_rows(test, &test_cells.samples, kf);
+    let phi_r = basis_rows(reference, &reference_cells.samples, kf);
+    let fit = SampledFit::new(phi_t.as_ref(), &test_cells.cell_areas(&test.mass));
     // The map's own functional map at k_start, from every sample's image under `map`.
     let first: Vec<usize> = test_cells.samples.iter().map(|&s| map[s]).collect();
     let phi_ref = basis(reference, kf);
     let mut k = schedule.k_start;
-    let mut c = fit(&first, k, &|i, j| phi_ref[(first[i], j)])?;
+    let mut c = fit.fit(k, k, &|i, j| phi_ref[(first[i], j)])?;
     loop {
         // Test samples onto reference samples: rows of Φ_t against rows of Φ_r Cᵀ.
         let mut points = Mat::<f64>::zeros(phi_r.nrows(), k);
@@ -254,7 +300,7 @@ pub fn zoomout_on_samples(
         };
         let last = k == kf;
         k = (k + schedule.step).min(kf);
-        c = fit(&t, k, &|i, j| phi_r[(t[i], j)])?;
+        c = fit.fit(k, k, &|i, j| phi_r[(t[i], j)])?;
         if last {
             return Ok(c);
         }
@@ -338,7 +384,7 @@ pub(super) fn nearest_in_cells(
 }
 
 /// Checks that `map` names reference vertices and that `balls` has one ball per cell.
-fn check_map(
+pub(super) fn check_map(
     map: &[usize],
     reference: &Spectrum,
     balls: Option<&CellBalls>,
