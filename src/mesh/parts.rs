@@ -120,11 +120,14 @@ pub fn boundary_loops(mesh: &Mesh) -> Vec<Vec<usize>> {
             directed.insert((f[e], f[(e + 1) % 3]));
         }
     }
+    // The boundary edges in a fixed order (the set's own order changes from one set to the
+    // next), so that where several loops meet at a vertex they are traced the same way every time.
+    let mut boundary: Vec<(usize, usize)> =
+        directed.iter().copied().filter(|&(a, b)| !directed.contains(&(b, a))).collect();
+    boundary.sort_unstable();
     let mut next: HashMap<usize, Vec<usize>> = HashMap::new();
-    for &(a, b) in &directed {
-        if !directed.contains(&(b, a)) {
-            next.entry(a).or_default().push(b);
-        }
+    for (a, b) in boundary {
+        next.entry(a).or_default().push(b);
     }
     let mut starts: Vec<usize> = next.keys().copied().collect();
     starts.sort_unstable();
@@ -364,6 +367,49 @@ mod tests {
         let patch_area: f64 = patch.iter().map(|f| area_of(&filled, f)).sum();
         let disc = std::f64::consts::PI * r * r;
         assert!((patch_area / disc - 1.0).abs() < 0.1, "patch {patch_area}, disc {disc}");
+    }
+
+    #[test]
+    fn loops_meeting_at_a_vertex_are_traced_the_same_way_every_time() {
+        // A sphere with two caps cut away that touch at one vertex (as a single-view scan's
+        // holes often do): the boundary passes that vertex twice, and which outgoing edge is
+        // followed first decides the loops. The same mesh must give the same loops (and so the
+        // same filled mesh and spectrum) on every call; the hash set's order used to decide it.
+        let sphere = icosphere(3, 1.0);
+        let pinch = (0..sphere.n_vertices())
+            .max_by(|&a, &b| sphere.vertices[a][0].total_cmp(&sphere.vertices[b][0]))
+            .unwrap();
+        let p = sphere.vertices[pinch];
+        let neighbours: Vec<usize> = sphere
+            .faces
+            .iter()
+            .filter(|f| f.contains(&pinch))
+            .flat_map(|f| f.iter().copied())
+            .filter(|&v| v != pinch)
+            .collect();
+        // Drop the faces around the pinch vertex above and below it (z), keeping the ones
+        // beside it, so two holes share that one vertex.
+        let faces: Vec<[usize; 3]> = sphere
+            .faces
+            .iter()
+            .copied()
+            .filter(|f| {
+                if !f.contains(&pinch) {
+                    return true;
+                }
+                let z = f.iter().map(|&v| sphere.vertices[v][2] - p[2]).sum::<f64>();
+                z.abs() < 0.02
+            })
+            .collect();
+        assert!(faces.len() + 2 <= sphere.n_faces() && !neighbours.is_empty());
+        let open = Mesh::new(sphere.vertices.clone(), faces).unwrap();
+        let first = boundary_loops(&open);
+        let through: usize = first.iter().map(|l| l.iter().filter(|&&v| v == pinch).count()).sum();
+        assert!(through >= 2, "the boundary passes the pinch vertex {through} times");
+        for _ in 0..20 {
+            assert_eq!(boundary_loops(&open), first);
+            assert_eq!(fill_holes(&open, 10.0).0, fill_holes(&open, 10.0).0);
+        }
     }
 
     #[test]
