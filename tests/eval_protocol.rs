@@ -69,6 +69,65 @@ fn protocol_on_a_small_family_beats_raw_wks_knn() {
 }
 
 #[test]
+fn a_zoomout_basis_beyond_the_descriptors_eigenpairs_is_computed_and_used() {
+    // Descriptors on 30 eigenpairs; ZoomOut asked to refine up to 60. The protocol used to cap
+    // ZoomOut at the descriptors' 30 without a word; now the reference and the scans get 60.
+    let fam = family(1500, 4);
+    let shapes: Vec<ProtocolShape> = fam
+        .shapes
+        .iter()
+        .enumerate()
+        .map(|(i, m)| ProtocolShape::identity(format!("s{i}"), Arc::new(m.clone())))
+        .collect();
+    let cache = tempfile::tempdir().unwrap();
+    let run = |k_final: usize| {
+        let params = ProtocolParams {
+            n_train: 2,
+            max_tests: Some(1),
+            train_once: true,
+            eval_points: 300,
+            skip_baseline: true,
+            forest: RandomForest::params().n_trees(4).seed(3),
+            spectrum: SpectrumParams::new(30),
+            regularizer: shapeforest::regularizer::RegularizerParams {
+                zoomout: Some(shapeforest::regularizer::ZoomOutParams {
+                    k_start: 10,
+                    k_final,
+                    step: 5,
+                    samples: 1500,
+                    ..Default::default()
+                }),
+                ..Default::default()
+            },
+            cache_dir: Some(cache.path().to_path_buf()),
+            ..ProtocolParams::default()
+        };
+        run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap()
+    };
+    let at_30 = run(30);
+    let at_60 = run(60);
+    let spectra_of = |k: usize| {
+        std::fs::read_dir(cache.path())
+            .unwrap()
+            .filter(|e| {
+                e.as_ref().unwrap().file_name().to_string_lossy().ends_with(&format!("-k{k}.spectrum"))
+            })
+            .count()
+    };
+    // The reference and the one scan, with 60 eigenpairs beside the descriptors' 30.
+    assert_eq!(spectra_of(60), 2, "60-eigenpair spectra of the reference and the scan");
+    let errors = |r: &shapeforest::eval::protocol::ProtocolReport| {
+        let t = &r.tests[0];
+        t.methods.iter().find(|m| m.method == Method::ForestZoomOut).unwrap().strict.clone()
+    };
+    assert_ne!(errors(&at_30), errors(&at_60), "ZoomOut to 60 gave the map of ZoomOut to 30");
+    let (s30, _) = at_30.summary(Method::ForestZoomOut);
+    let (s60, _) = at_60.summary(Method::ForestZoomOut);
+    println!("ZoomOut to 30: {s30:?}\nZoomOut to 60: {s60:?}");
+    assert!(s60.within_005 >= 0.5, "ZoomOut to 60 reaches only {s60:?}");
+}
+
+#[test]
 fn protocol_rejects_inconsistent_truth_tables() {
     let mut shapes: Vec<ProtocolShape> = (0..2)
         .map(|i| ProtocolShape::identity(format!("s{i}"), Arc::new(shapeforest::synth::icosphere(2, 1.0))))

@@ -163,9 +163,9 @@ pub struct EvalArgs {
     /// First basis size of ZoomOut.
     #[arg(long, default_value_t = 20, value_name = "K")]
     pub zoomout_start: usize,
-    /// Last basis size of ZoomOut. With --pairs / --protocol, more than the spectrum's
-    /// eigenpairs (100) computes the tested shapes' spectra again with this many for the pair
-    /// maps' ZoomOut.
+    /// Last basis size of ZoomOut. More than the spectrum's eigenpairs (100) computes the
+    /// reference's and every scan's spectrum again with this many for ZoomOut (the descriptors
+    /// keep the first 100).
     #[arg(long, default_value_t = 100, value_name = "K")]
     pub zoomout_final: usize,
     /// Farthest-point samples per shape that ZoomOut's iterations run on.

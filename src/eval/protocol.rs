@@ -486,6 +486,13 @@ pub fn run_protocol(
 
     let mut forests: HashMap<Vec<usize>, (Arc<RandomForest>, Arc<WksKnn>)> = HashMap::new();
     let mut reference_cache: Option<PreparedReference> = None;
+    // ZoomOut beyond the descriptors' eigenpairs: the reference and every scan get a spectrum of
+    // as many eigenpairs as ZoomOut's last basis asks for (its first K are the descriptors' own).
+    let zoomout_spectrum = params
+        .regularizer
+        .zoomout
+        .filter(|z| z.k_final > params.spectrum.k)
+        .map(|z| SpectrumParams { k: z.k_final, ..params.spectrum.clone() });
     let mut tests = Vec::with_capacity(jobs.len());
     for (done, (t, train)) in jobs.iter().enumerate() {
         let test_shape = &shapes[*t];
@@ -546,6 +553,13 @@ pub fn run_protocol(
             let r = &shapes[reference];
             let mut prepared =
                 PreparedShape::new(r.mesh.clone(), spectrum_of(reference)?, params.regularizer.heat)?;
+            if let Some(zp) = &zoomout_spectrum {
+                prepared = prepared.with_zoomout_spectrum(Arc::new(spectrum_cached(
+                    &r.mesh,
+                    zp,
+                    cache.as_ref(),
+                )?))?;
+            }
             // The class's left/right symmetry, when known, lets the regulariser repair mirrored
             // maps (a property of the label set, the same from the training shapes alone).
             if let (Some(sym), Some(_)) = (symmetry, params.regularizer.unflip) {
@@ -613,7 +627,18 @@ pub fn run_protocol(
         };
         let (part_mesh, part_kept) = (part.mesh.clone(), part.kept.clone());
         let t0 = Instant::now();
-        let test_prepared = PreparedShape::new(part_mesh.clone(), part_spectrum, params.regularizer.heat)?;
+        let mut test_prepared =
+            PreparedShape::new(part_mesh.clone(), part_spectrum, params.regularizer.heat)?;
+        if let Some(zp) = &zoomout_spectrum {
+            // The same mesh and the same normalisation as the descriptors' spectrum, more pairs.
+            let sp = spectrum_cached(&spectrum_mesh, zp, cache.as_ref())?;
+            let sp = match (kept.is_some(), params.partial_scale) {
+                (false, _) => sp,
+                (true, true) => part.spectrum_for_matching(&spectrum_mesh, sp, ref_area).0,
+                (true, false) => sp.restricted(part.mesh.n_vertices()),
+            };
+            test_prepared = test_prepared.with_zoomout_spectrum(Arc::new(sp))?;
+        }
         timings.prepare_s += t0.elapsed().as_secs_f64();
         // A map on the part, as a map on the whole scan.
         let on_scan = |map: Vec<usize>| part.extend(&scan_mesh, map);
