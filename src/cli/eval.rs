@@ -183,6 +183,20 @@ pub struct EvalArgs {
     /// less than 90 % of the reference's area gets the partial, rectangular ZoomOut).
     #[arg(long)]
     pub zoomout_square: bool,
+    /// Print, for every test, where the wrong points come from: the fraction within 0.05 of the
+    /// best forest candidate, of the game's matches, of the map after each stage, and of the
+    /// regulariser with the partial-scan variants (`trust`: boundary-aware anchor weights, `free`:
+    /// reference samples as extra candidates, `top20`: 20 candidates per sample in the game, `top20+free`).
+    #[arg(long)]
+    pub diagnose: bool,
+    /// Anchor growth weighs each (vertex, anchor) distance by how far it can be from the
+    /// scan's boundary (see `regularizer::pair_trust`).
+    #[arg(long)]
+    pub boundary_trust: bool,
+    /// Reference farthest-point samples that anchor growth tries for every vertex besides its
+    /// forest candidates (0: none).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub free_candidates: usize,
 }
 
 impl EvalArgs {
@@ -208,6 +222,10 @@ impl EvalArgs {
         shapeforest::regularizer::RegularizerParams {
             zoomout: on.then(|| self.zoomout_params()),
             partial_zoomout: !self.zoomout_square,
+            partial_scan: shapeforest::regularizer::PartialScanParams {
+                boundary_trust: self.boundary_trust,
+                free_candidates: self.free_candidates,
+            },
             ..Default::default()
         }
     }
@@ -607,6 +625,46 @@ pub(super) fn bar(quiet: bool) -> ProgressBar {
     pb
 }
 
+/// The regulariser variants `--diagnose` measures besides `base`.
+fn diagnosis_variants(
+    base: &shapeforest::regularizer::RegularizerParams,
+) -> Vec<(String, shapeforest::regularizer::RegularizerParams)> {
+    use shapeforest::regularizer::PartialScanParams;
+    [
+        ("trust", true, 0, base.top_k),
+        ("free", false, 1000, base.top_k),
+        ("top20", false, 0, 20),
+        ("top20+free", false, 1000, 20),
+    ]
+    .into_iter()
+    .map(|(name, boundary_trust, free_candidates, top_k)| {
+        let partial_scan = PartialScanParams { boundary_trust, free_candidates };
+        (
+            name.to_string(),
+            shapeforest::regularizer::RegularizerParams { partial_scan, top_k, ..base.clone() },
+        )
+    })
+    .collect()
+}
+
+/// The `--diagnose` tables, one per test (empty without diagnoses).
+fn format_diagnoses(report: &shapeforest::eval::protocol::ProtocolReport) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    for t in &report.tests {
+        let Some(d) = &t.diagnosis else { continue };
+        let _ = writeln!(
+            out,
+            "diagnosis of {} ({} evaluated points in the matched part, {} game matches): within 0.05 strict / up to symmetry",
+            report.shape_names[t.test], d.points, d.matches
+        );
+        for (name, strict, sym) in &d.rows {
+            let _ = writeln!(out, "  {name:<24} {:>6.1} / {:>5.1}", 100.0 * strict, 100.0 * sym);
+        }
+    }
+    out
+}
+
 /// Runs `shapeforest eval`.
 pub fn run(args: EvalArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out)
@@ -635,6 +693,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         augment: args.augment.iter().map(|&p| vec![p]).collect(),
         augment_copies: args.augment_copies,
         regularizer: args.regularizer_params(false),
+        diagnose: args.diagnose.then(|| diagnosis_variants(&args.regularizer_params(false))),
         ..ProtocolParams::default()
     };
     let n_labels = class.shapes[0].truth.len();
@@ -689,6 +748,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
 
     print!("{}", format_table(&report));
     print!("{}", format_timings(&report));
+    print!("{}", format_diagnoses(&report));
     write_outputs(&args.out, &class, &report, params.curve_steps)?;
     super::visual::write_eval_pages(&args.out, &class.shapes, &report, &format_table(&report))?;
     println!(

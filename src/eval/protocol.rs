@@ -124,6 +124,27 @@ pub struct ProtocolParams {
     pub augment: Vec<Vec<Perturbation>>,
     /// Copies per training shape and augmentation kind (default 4).
     pub augment_copies: usize,
+    /// Diagnose every test ([`TestResult::diagnosis`]): how many evaluated points are right
+    /// at each stage of the regulariser, and with each of these variants of its settings
+    /// (named). Default off.
+    pub diagnose: Option<Vec<(String, RegularizerParams)>>,
+}
+
+/// Where a test's wrong points come from (with [`ProtocolParams::diagnose`]): the fraction of
+/// the evaluated points of the matched part within 0.05 (strict, and up to the mirror
+/// symmetry) at each stage of the regulariser, in pipeline order.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Diagnosis {
+    /// Evaluated points in the matched part (the denominators of the point rows).
+    pub points: usize,
+    /// Sparse matches of the game (the denominator of its row).
+    pub matches: usize,
+    /// `(stage, strict, up to symmetry)`: fractions within 0.05. Stages: `candidates` (the
+    /// best of the forest's candidates of each point: what a placement among them can reach at
+    /// most), `top-5 candidates`, `game matches` (of the sparse matches), `forest-raw`,
+    /// `anchor map` (placed by the game's matches alone), `grown`, `final`, then
+    /// `VARIANT grown` and `VARIANT final` for each variant.
+    pub rows: Vec<(String, f64, f64)>,
 }
 
 impl Default for ProtocolParams {
@@ -147,6 +168,7 @@ impl Default for ProtocolParams {
             fill_holes: Some(ScanPart::FILL_PERIMETER),
             augment: Vec::new(),
             augment_copies: 4,
+            diagnose: None,
         }
     }
 }
@@ -297,6 +319,9 @@ pub struct TestResult {
     /// The perturbed scan (`None` without perturbation: the scan is the test shape).
     #[serde(skip)]
     pub scan: Option<Arc<Mesh>>,
+    /// Where the wrong points come from (with [`ProtocolParams::diagnose`]).
+    #[serde(default)]
+    pub diagnosis: Option<Diagnosis>,
 }
 
 impl TestResult {
@@ -721,6 +746,24 @@ pub fn run_protocol(
             methods.push(measure(Method::WksKnnRaw, &raw(knn_prediction))?);
             methods.push(measure(Method::WksKnnRegularized, &on_scan(knn_dense.map.clone()))?);
         }
+        let diagnosis = match &params.diagnose {
+            Some(variants) => {
+                let inputs = DiagnosisInputs {
+                    test_prepared: &test_prepared,
+                    reference: ref_prepared,
+                    prediction: &prediction,
+                    table,
+                    part_kept: part_kept.as_deref(),
+                    scan_kept: kept.as_deref(),
+                    test_truth: &test_shape.truth,
+                    evaluated: &evaluated,
+                    fields: fields_used.as_ref(),
+                    mirror: mirror_used.map(|m| m.as_ref()),
+                };
+                Some(diagnose(&inputs, &dense, variants, &params.regularizer)?)
+            }
+            None => None,
+        };
         let in_matched_part = match &part_kept {
             Some(k) => {
                 let mut inside = vec![false; scan_mesh.n_vertices()];
@@ -751,6 +794,7 @@ pub fn run_protocol(
             in_matched_part,
             matched_part_vertices: part_mesh.n_vertices(),
             scale_ratio,
+            diagnosis,
         });
         if let Some(cb) = progress.as_mut() {
             cb(ProtocolEvent::TestDone { done: done + 1, total: jobs.len(), name: &test_shape.name });
@@ -763,6 +807,130 @@ pub fn run_protocol(
         has_symmetry: symmetry.is_some(),
         tests,
     })
+}
+
+/// What [`diagnose`] reads.
+struct DiagnosisInputs<'a> {
+    test_prepared: &'a PreparedShape,
+    reference: &'a PreparedShape,
+    prediction: &'a Prediction,
+    /// Label → reference vertex.
+    table: &'a [usize],
+    /// Part vertex → scan vertex (`None`: the part is the scan).
+    part_kept: Option<&'a [usize]>,
+    /// Scan vertex → test-shape vertex (`None`: the scan is the test shape).
+    scan_kept: Option<&'a [usize]>,
+    /// Label → test-shape vertex.
+    test_truth: &'a [usize],
+    /// Evaluated scan vertices, one per column of `fields`.
+    evaluated: &'a [usize],
+    /// Reference distances from the true image of each evaluated point.
+    fields: faer::MatRef<'a, f64>,
+    /// The same from the mirror images.
+    mirror: Option<faer::MatRef<'a, f64>>,
+}
+
+/// The stages of [`Diagnosis`] for one test.
+fn diagnose(
+    d: &DiagnosisInputs<'_>,
+    dense: &crate::regularizer::DenseMap,
+    variants: &[(String, RegularizerParams)],
+    base: &RegularizerParams,
+) -> Result<Diagnosis, EvalError> {
+    let n_part = d.test_prepared.mesh.n_vertices();
+    let mut scan_to_part: Vec<Option<usize>> = match d.part_kept {
+        Some(k) => {
+            let n_scan =
+                k.iter().max().map_or(0, |&m| m + 1).max(d.evaluated.iter().max().map_or(0, |&m| m + 1));
+            let mut idx = vec![None; n_scan];
+            for (p, &v) in k.iter().enumerate() {
+                idx[v] = Some(p);
+            }
+            idx
+        }
+        None => (0..n_part).map(Some).collect(),
+    };
+    scan_to_part.resize(d.evaluated.iter().max().map_or(0, |&m| m + 1).max(scan_to_part.len()), None);
+    // (column, part vertex) of the evaluated points in the matched part.
+    let points: Vec<(usize, usize)> =
+        d.evaluated.iter().enumerate().filter_map(|(j, &v)| scan_to_part[v].map(|p| (j, p))).collect();
+    let norm = 1.0 / d.reference.mesh.surface_area().max(f64::MIN_POSITIVE).sqrt();
+    let error = |r: usize, j: usize| {
+        let strict = d.fields[(r, j)] * norm;
+        let sym = d.mirror.map_or(strict, |m| strict.min(m[(r, j)] * norm));
+        (strict, sym)
+    };
+    let fraction = |count: usize, of: usize| if of == 0 { 0.0 } else { count as f64 / of as f64 };
+    let score = |errors: &[(f64, f64)]| {
+        let s = errors.iter().filter(|e| e.0 <= 0.05).count();
+        let y = errors.iter().filter(|e| e.1 <= 0.05).count();
+        (fraction(s, errors.len()), fraction(y, errors.len()))
+    };
+    let of_map = |map: &[usize]| score(&points.iter().map(|&(j, p)| error(map[p], j)).collect::<Vec<_>>());
+    let best_of = |cands: &mut dyn Iterator<Item = usize>, j: usize| {
+        cands.map(|r| error(r, j)).fold((f64::INFINITY, f64::INFINITY), |a, b| (a.0.min(b.0), a.1.min(b.1)))
+    };
+    let mut rows = Vec::new();
+    let all: Vec<(f64, f64)> = points
+        .iter()
+        .map(|&(j, p)| {
+            let (labels, _) = d.prediction.posterior(p);
+            best_of(&mut labels.iter().map(|&l| d.table[l as usize]), j)
+        })
+        .collect();
+    let (s, y) = score(&all);
+    rows.push(("candidates".to_string(), s, y));
+    let top: Vec<(f64, f64)> = points
+        .iter()
+        .map(|&(j, p)| {
+            best_of(&mut d.prediction.top_k(p, base.top_k).into_iter().map(|(l, _)| d.table[l as usize]), j)
+        })
+        .collect();
+    let (s, y) = score(&top);
+    rows.push((format!("top-{} candidates", base.top_k), s, y));
+    // The game's matches against the truth of their test vertex.
+    let mut label_of = vec![None; d.test_truth.iter().max().map_or(0, |&v| v + 1)];
+    for (k, &v) in d.test_truth.iter().enumerate() {
+        label_of[v] = Some(k);
+    }
+    let truth_of = |p: usize| {
+        let scan = d.part_kept.map_or(p, |k| k[p]);
+        let shape = d.scan_kept.map_or(scan, |k| k[scan]);
+        label_of.get(shape).copied().flatten().map(|k| d.table[k])
+    };
+    let judged: Vec<(usize, usize)> =
+        dense.matches.iter().filter_map(|m| truth_of(m.test).map(|t| (m.reference, t))).collect();
+    let sources: Vec<usize> = judged.iter().map(|&(r, _)| r).collect();
+    let columns = d.reference.distance_columns(&sources)?;
+    let symmetry = d.reference.symmetry.as_deref();
+    let sqrt_area = d.reference.sqrt_area();
+    let match_errors: Vec<(f64, f64)> = judged
+        .iter()
+        .zip(&columns)
+        .map(|(&(_, t), col)| {
+            let strict = col[t] / sqrt_area;
+            (strict, symmetry.map_or(strict, |sym| strict.min(col[sym[t]] / sqrt_area)))
+        })
+        .collect();
+    let (s, y) = score(&match_errors);
+    rows.push(("game matches".to_string(), s, y));
+    let raw = raw_map(d.prediction, d.table);
+    let (s, y) = of_map(&raw);
+    rows.push(("forest-raw".to_string(), s, y));
+    for (name, map) in
+        [("anchor map", &dense.anchor_map[..]), ("grown", dense.unrefined_map()), ("final", &dense.map[..])]
+    {
+        let (s, y) = of_map(map);
+        rows.push((name.to_string(), s, y));
+    }
+    for (name, params) in variants {
+        let v = regularize(d.test_prepared, d.reference, d.prediction, Some(d.table), params)?;
+        let (s, y) = of_map(v.unrefined_map());
+        rows.push((format!("{name} grown"), s, y));
+        let (s, y) = of_map(&v.map);
+        rows.push((format!("{name} final"), s, y));
+    }
+    Ok(Diagnosis { points: points.len(), matches: match_errors.len(), rows })
 }
 
 /// The maximum-a-posteriori map of a prediction read through `label_to_vertex`; a vertex with

@@ -1,7 +1,11 @@
 //! Anchor growth and the anchor-consistent placement of every vertex (steps 6–7 of the
 //! regulariser): see [`super::AnchorGrowthParams`].
 
-use super::{smoothing::smooth_placement, *};
+use super::{
+    partial::{boundary_distances, pair_trust, PartialScanParams},
+    smoothing::smooth_placement,
+    *,
+};
 
 /// For each test vertex, the candidate reference vertex whose normalised distances to the
 /// anchors best match the vertex's own (weighted L1); `None` where there is no candidate at a
@@ -42,6 +46,7 @@ pub(super) fn grow_anchors(
     posterior: &LabelledPosterior<'_>,
     start: Vec<usize>,
     p: &AnchorGrowthParams,
+    partial: &PartialScanParams,
 ) -> Result<Grown, Error> {
     let orientation = Orientation::of(test, reference);
     // Shared by both runs: the samples, their test-side fields, and the reference fields of
@@ -54,7 +59,15 @@ pub(super) fn grow_anchors(
     // The sparse step's samples are the first of these (the same farthest-point sequence):
     // their columns are kept by the test shape.
     let a_fields = test.distance_columns(&samples)?;
-    let setup = GrowthSetup { samples, a_fields, orientation };
+    let boundary =
+        if partial.boundary_trust { boundary_distances(&test.mesh, test.sqrt_area()) } else { None };
+    let extra = if partial.free_candidates > 0 {
+        let n = partial.free_candidates.min(reference.mesh.n_vertices());
+        farthest_point_sampling_euclidean(&reference.mesh, n, None)?
+    } else {
+        Vec::new()
+    };
+    let setup = GrowthSetup { samples, a_fields, orientation, boundary, extra };
     // Reference columns are shared by both runs: the second run's rounds mostly revisit the
     // targets of the first, and each costs a heat-method solve.
     let mut ref_cols = std::collections::HashMap::new();
@@ -85,6 +98,11 @@ struct GrowthSetup {
     a_fields: Vec<Arc<[f64]>>,
     /// Orientation descriptors of the test and reference shapes.
     orientation: Orientation,
+    /// Normalised distances to the test shape's boundary, when pairs are weighed by
+    /// [`pair_trust`].
+    boundary: Option<Vec<f64>>,
+    /// Reference vertices tried for every test vertex besides its forest candidates.
+    extra: Vec<usize>,
 }
 
 /// Normalised (÷ √area) reference distance columns from `targets`, as f32 (the ones the
@@ -126,7 +144,8 @@ fn grow_rounds(
 ) -> Result<(Vec<usize>, usize), Error> {
     use rayon::prelude::*;
     let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
-    let GrowthSetup { samples, a_fields, orientation } = setup;
+    let GrowthSetup { samples, a_fields, orientation, boundary, extra } = setup;
+    let trust = |d: f64, a: usize, b: usize| boundary.as_ref().map_or(1.0, |db| pair_trust(d, db[a], db[b]));
     let s = samples.len();
     let ts = 1.0 / test.sqrt_area();
     let a_col = |j: usize| &a_fields[j][..];
@@ -146,10 +165,16 @@ fn grow_rounds(
             .into_par_iter()
             .map(|i| {
                 let ci = &ref_cols[&targets[i]];
+                let disagreement = |j: usize| (a_col(i)[samples[j]] * ts - ci[targets[j]] as f64).abs();
+                // Pairs whose geodesic may run along a hole are left out (all kept when too few
+                // remain).
                 let mut d: Vec<f64> = (0..s)
-                    .filter(|&j| j != i)
-                    .map(|j| (a_col(i)[samples[j]] * ts - ci[targets[j]] as f64).abs())
+                    .filter(|&j| j != i && trust(a_col(i)[samples[j]] * ts, samples[i], samples[j]) >= 0.5)
+                    .map(disagreement)
                     .collect();
+                if d.len() < 5 {
+                    d = (0..s).filter(|&j| j != i).map(disagreement).collect();
+                }
                 let mid = d.len() / 2;
                 d.select_nth_unstable_by(mid, f64::total_cmp);
                 (d[mid], i)
@@ -166,7 +191,8 @@ fn grow_rounds(
             for v in 0..n_t {
                 let d = col[v] * ts;
                 a[v * k + j] = d as f32;
-                w[v * k + j] = if p.locality > 0.0 { (-d / p.locality).exp() as f32 } else { 1.0 };
+                let local = if p.locality > 0.0 { (-d / p.locality).exp() } else { 1.0 };
+                w[v * k + j] = (local * trust(d, v, samples[i])) as f32;
             }
         }
         let mut b = vec![0f32; n_r * k];
@@ -188,7 +214,7 @@ fn grow_rounds(
                 let norm = 1.0 / wm.iter().sum::<f32>().max(f32::MIN_POSITIVE);
                 let mut best = (f32::INFINITY, map[m]);
                 let mut table = Vec::new();
-                posterior.for_each_entry(m, &mut |r, _| {
+                let mut consider = |r: usize| {
                     let br = &b[r * k..(r + 1) * k];
                     let mut cost: f32 =
                         am.iter().zip(wm).zip(br).map(|((x, w), y)| w * (x - y).abs()).sum::<f32>() * norm;
@@ -201,7 +227,11 @@ fn grow_rounds(
                     if last {
                         table.push((r as u32, cost));
                     }
-                });
+                };
+                posterior.for_each_entry(m, &mut |r, _| consider(r));
+                for &r in extra {
+                    consider(r);
+                }
                 (best.1, table)
             })
             .collect();

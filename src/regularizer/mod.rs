@@ -43,7 +43,10 @@ use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
 pub use pair::{invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams};
-pub use partial::{partial_area_ratio, refine_zoomout_partial, PARTIAL_AREA_RATIO};
+pub use partial::{
+    boundary_distances, pair_trust, partial_area_ratio, refine_zoomout_partial, PartialScanParams,
+    PARTIAL_AREA_RATIO,
+};
 pub use refine::{cell_balls, map_distortion, refine_zoomout, sample_cells};
 pub use scan::ScanPart;
 
@@ -339,6 +342,9 @@ pub struct RegularizerParams {
     /// the regulariser itself needs the spectral nearest neighbour only for the vertices that no
     /// candidate places, and the full search over every reference vertex was a tenth of its time.
     pub spectral_maps: bool,
+    /// Anchor growth on scans with holes and partial scans (see [`PartialScanParams`]).
+    /// Default: off.
+    pub partial_scan: PartialScanParams,
 }
 
 impl Default for RegularizerParams {
@@ -354,6 +360,7 @@ impl Default for RegularizerParams {
             partial_zoomout: true,
             unflip: Some(0.2),
             spectral_maps: false,
+            partial_scan: PartialScanParams::default(),
         }
     }
 }
@@ -727,7 +734,8 @@ pub fn dense_map(
     let grown = match &params.growth {
         Some(g) if !weights.is_empty() => {
             let t0 = Instant::now();
-            let grown = grow_anchors(test, reference, &posterior, anchor_map.clone(), g)?;
+            let grown =
+                grow_anchors(test, reference, &posterior, anchor_map.clone(), g, &params.partial_scan)?;
             timings.growth_s = t0.elapsed().as_secs_f64();
             Some(grown)
         }

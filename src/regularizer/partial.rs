@@ -3,8 +3,74 @@
 //! instead of [`super::refine_zoomout`] when the test shape is an open part of less than
 //! [`PARTIAL_AREA_RATIO`] of the reference's area.
 
+use serde::{Deserialize, Serialize};
+
 use super::{sample_cells, PreparedShape, RegularizerError as Error, ZoomOutParams};
-use crate::fmap::{point_to_point_partial, zoomout_partial_on_samples, ZoomOutSchedule};
+use crate::{
+    fmap::{point_to_point_partial, zoomout_partial_on_samples, ZoomOutSchedule},
+    geodesic::dijkstra_distances,
+    mesh::{boundary_loops, Mesh},
+};
+
+/// Anchor growth on a scan with holes or a partial scan (see
+/// [`super::RegularizerParams::partial_scan`]). Both are off by default.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PartialScanParams {
+    /// Weigh every (vertex, anchor) distance of anchor growth by how much it can be trusted on
+    /// an open test shape ([`pair_trust`]): a geodesic that may pass along a hole is longer on
+    /// the scan than on the whole body, so such pairs count less in the placement of a vertex
+    /// and are left out of the anchors' consistency scores.
+    pub boundary_trust: bool,
+    /// Reference farthest-point samples added to every vertex's forest candidates in anchor
+    /// growth (0: the forest's candidates only), so that a vertex whose candidates are all
+    /// wrong can still be placed by its distances to the anchors.
+    pub free_candidates: usize,
+}
+
+/// Distances along edges from every vertex of `mesh` to its boundary, divided by `scale`;
+/// `None` for a closed mesh. A vertex of a component without boundary gets `∞`.
+///
+/// ```
+/// use shapeforest::{regularizer::boundary_distances, synth::{grid_plane, icosphere}};
+/// assert!(boundary_distances(&icosphere(1, 1.0), 1.0).is_none());
+/// let d = boundary_distances(&grid_plane(4, 4, 1.0, 1.0), 1.0).unwrap();
+/// assert_eq!(d.iter().cloned().fold(f64::INFINITY, f64::min), 0.0);
+/// assert!(d.iter().cloned().fold(0.0, f64::max) > 0.3); // inner vertices are a third of a side away or more
+/// ```
+pub fn boundary_distances(mesh: &Mesh, scale: f64) -> Option<Vec<f64>> {
+    let mut sources: Vec<usize> = boundary_loops(mesh).into_iter().flatten().collect();
+    if sources.is_empty() {
+        return None;
+    }
+    sources.sort_unstable();
+    sources.dedup();
+    let d = dijkstra_distances(mesh, &sources).ok()?;
+    let inv = 1.0 / scale.max(f64::MIN_POSITIVE);
+    Some(d.into_iter().map(|x| x * inv).collect())
+}
+
+/// How far the geodesic distance `d` between two vertices of an open scan can be trusted,
+/// given their distances `da`, `db` to the boundary (all in the same units), in (0, 1].
+///
+/// A path through a boundary point is at least `da + db` long, so when `d ≤ da + db` the
+/// geodesic does not come near a hole and is (up to one hole's reach) the whole body's: trust 1.
+/// Beyond that it may run around a hole, longer than on the body: trust `((da + db) / d)²`.
+///
+/// ```
+/// use shapeforest::regularizer::pair_trust;
+/// assert_eq!(pair_trust(0.3, 0.2, 0.2), 1.0);
+/// assert!((pair_trust(0.4, 0.1, 0.1) - 0.25).abs() < 1e-12);
+/// assert_eq!(pair_trust(0.0, 0.0, 0.0), 1.0);
+/// ```
+pub fn pair_trust(d: f64, da: f64, db: f64) -> f64 {
+    let reach = da + db;
+    if d <= reach || !d.is_finite() {
+        1.0
+    } else {
+        let r = reach / d;
+        (r * r).max(1e-6)
+    }
+}
 
 /// A test shape with boundary and less than this fraction of the reference's area is refined as
 /// a part ([`refine_zoomout_partial`]); above it (a scan with small holes) the square ZoomOut is
