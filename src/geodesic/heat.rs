@@ -194,6 +194,8 @@ pub struct HeatMethodSolver {
     heat_neumann: Cholesky,
     dirichlet: Option<DirichletSystem>,
     poisson: Cholesky,
+    /// Heat put at a source (a power of two, see [`source_heat`]).
+    source_heat: f64,
 }
 
 impl std::fmt::Debug for HeatMethodSolver {
@@ -268,6 +270,26 @@ fn diagonal_of(a: &SparseColMat<usize, f64>) -> Vec<f64> {
 
 fn assembly_error(e: impl std::fmt::Debug) -> GeodesicError {
     GeodesicError::Factorization { matrix: "assembly", reason: format!("{e:?}") }
+}
+
+/// The heat put at a source: a power of two that makes the largest heat value about 2^600.
+///
+/// With a unit source, the heat `(M + tL)⁻¹ δ` decays exponentially away from the source and
+/// reaches the subnormal range (below 2^-1022) on large meshes, inside the triangular solves as
+/// well as in the result; arithmetic on subnormals is many times slower on x86, and values that
+/// underflow to zero leave their faces without a gradient. The heat step and the Poisson
+/// right-hand side are linear and scale-free respectively (the gradient is normalised), so a
+/// power-of-two source changes no normal value by a single bit; it only moves the underflow
+/// some 180 decades farther out. The largest heat is at most `source / min M` (the heat
+/// operator is diagonally dominant with row sums `M`), so `2^600 · min M` leaves ~2^420 of room
+/// below overflow.
+fn source_heat(mass: &[f64]) -> f64 {
+    let min_mass = mass.iter().copied().filter(|&m| m > 0.0 && m.is_finite()).fold(f64::INFINITY, f64::min);
+    if !min_mass.is_finite() {
+        return 1.0;
+    }
+    let exponent = (600.0 + min_mass.log2()).floor().clamp(-1000.0, 1000.0) as i32;
+    2f64.powi(exponent)
 }
 
 /// Columns processed side by side in the gradient and divergence step.
@@ -371,6 +393,7 @@ impl HeatMethodSolver {
             .map(|f| FaceOperator::new([mesh.vertices[f[0]], mesh.vertices[f[1]], mesh.vertices[f[2]]]))
             .collect();
 
+        let source_heat = source_heat(&mass);
         Ok(Self {
             n_vertices: n,
             faces: mesh.faces.clone(),
@@ -381,6 +404,7 @@ impl HeatMethodSolver {
             heat_neumann,
             dirichlet,
             poisson,
+            source_heat,
         })
     }
 
@@ -456,7 +480,7 @@ impl HeatMethodSolver {
         let use_neumann = self.dirichlet.is_none() || self.boundary != HeatBoundary::Dirichlet;
         if use_neumann {
             for (j, &src) in sources.iter().enumerate() {
-                heat[j * n + src] = 1.0;
+                heat[j * n + src] = self.source_heat;
             }
             self.heat_neumann.solve_block(&mut heat, n);
         }
@@ -521,13 +545,13 @@ impl HeatMethodSolver {
             let col = &mut interior_rhs[j * ni..(j + 1) * ni];
             let k = dir.interior_index[src];
             if k != usize::MAX {
-                col[k] = 1.0;
+                col[k] = self.source_heat;
             } else {
                 let range = sym.col_range(src);
                 for (&i, &v) in sym.row_idx()[range.clone()].iter().zip(&vals[range]) {
                     let ii = dir.interior_index[i];
                     if ii != usize::MAX {
-                        col[ii] -= v;
+                        col[ii] -= v * self.source_heat;
                     }
                 }
             }
@@ -539,7 +563,7 @@ impl HeatMethodSolver {
         for (j, &src) in sources.iter().enumerate() {
             let col = &mut heat[j * n..(j + 1) * n];
             if dir.interior_index[src] == usize::MAX {
-                col[src] = 1.0;
+                col[src] = self.source_heat;
             }
             for (k, &v) in dir.interior.iter().enumerate() {
                 col[v] = interior_rhs[j * ni + k];
@@ -632,6 +656,62 @@ mod tests {
         }
         let padding = (0..n).flat_map(|v| (5..COLUMN_GROUP).map(move |c| v * COLUMN_GROUP + c));
         assert!(padding.map(|i| rt[i]).all(|x| x == 0.0), "padding lanes stay zero");
+    }
+
+    /// A strip `len` squares long and 2 wide (unit squares, two triangles each), open.
+    fn strip(len: usize) -> Mesh {
+        let vertices = (0..=len).flat_map(|i| (0..3).map(move |j| [i as f64, j as f64, 0.0])).collect();
+        let faces = (0..len)
+            .flat_map(|i| {
+                (0..2).flat_map(move |j| {
+                    let (a, b, c, d) = (3 * i + j, 3 * i + j + 1, 3 * (i + 1) + j, 3 * (i + 1) + j + 1);
+                    [[a, c, d], [a, d, b]]
+                })
+            })
+            .collect();
+        Mesh::new(vertices, faces).unwrap()
+    }
+
+    #[test]
+    fn power_of_two_source_changes_nothing_where_the_heat_is_normal() {
+        // On a sphere the unit-source heat stays far above the subnormal range: the scaled
+        // source must give the same distances bit for bit.
+        let m = crate::synth::icosphere(3, 1.0);
+        let mut solver = HeatMethodSolver::new(&m, HeatParams::default()).unwrap();
+        assert!(solver.source_heat > 1e100, "source heat {}", solver.source_heat);
+        let scaled = solver.distances_from_many(&[0, 17, 100]).unwrap();
+        solver.source_heat = 1.0;
+        let unit = solver.distances_from_many(&[0, 17, 100]).unwrap();
+        for j in 0..3 {
+            for v in 0..m.n_vertices() {
+                assert_eq!(scaled[(v, j)].to_bits(), unit[(v, j)].to_bits(), "source {j}, vertex {v}");
+            }
+        }
+    }
+
+    #[test]
+    fn far_end_of_a_long_strip_gets_its_distance() {
+        // Some 850 edge lengths from the source a unit heat underflows to zero (its far field
+        // has no gradient, so the distance there is whatever the Poisson solve fills in); the
+        // scaled source keeps the heat normal and the distance along the strip right.
+        const LEN: usize = 1100;
+        let m = strip(LEN);
+        let mut solver = HeatMethodSolver::new(&m, HeatParams::default()).unwrap();
+        let far = m.n_vertices() - 2; // middle row, last column
+        let err = |d: &[f64]| (d[far] - LEN as f64).abs() / LEN as f64;
+        let scaled = solver.distances_from(1).unwrap();
+        assert!(err(&scaled) < 0.01, "scaled source: far end at {} ({LEN} expected)", scaled[far]);
+        // every column's distance grows along the strip
+        let mid: Vec<f64> = (0..=LEN).map(|i| scaled[3 * i + 1]).collect();
+        assert!(mid.windows(2).all(|w| w[1] > w[0]), "distance along the strip is monotone");
+        solver.source_heat = 1.0;
+        let unit = solver.distances_from(1).unwrap();
+        let unit_mid: Vec<f64> = (0..=LEN).map(|i| unit[3 * i + 1]).collect();
+        assert!(
+            !unit_mid.windows(2).all(|w| w[1] > w[0]) || err(&unit) > 0.01,
+            "the unit source was expected to fail here (far end {}), so this test shows nothing",
+            unit[far]
+        );
     }
 
     #[test]
