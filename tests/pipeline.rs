@@ -159,7 +159,7 @@ impl Stage for Fragile {
     type Out = usize;
     fn process(&mut self, _job: &mut Job, i: usize) -> Result<usize, Failure> {
         thread::sleep(Duration::from_millis(5));
-        if i % 3 == 0 {
+        if i.is_multiple_of(3) {
             panic!("cannot square {i}");
         }
         Ok(i * i)

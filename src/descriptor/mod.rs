@@ -30,6 +30,8 @@ mod wks;
 
 pub use hks::{heat_kernel_signature, hks_times, HksParams};
 pub use orientation::{band_pass_functions, orientation_band_energies, orientation_descriptors};
+#[cfg(target_arch = "x86_64")]
+pub(crate) use parametric::dot_f32_avx;
 pub use parametric::{dot_f32, EnergyGrid, ParametricWks};
 pub use wks::{wave_kernel_signature, wks_filter_sq, EnergyRange, WksParams};
 

@@ -147,9 +147,7 @@ impl RandomForest {
                 let (a, b) = (ci * CHUNK, ((ci + 1) * CHUNK).min(n));
                 let mut leaves = vec![0u32; (b - a) * n_trees];
                 for (ti, t) in self.trees.iter().enumerate() {
-                    for v in a..b {
-                        leaves[(v - a) * n_trees + ti] = t.leaf(table, self.k, pw.row(v)) as u32;
-                    }
+                    t.leaves_into(table, self.k, |v| pw.row(v), a..b, &mut leaves[ti..], n_trees);
                 }
                 let mut lens = Vec::with_capacity(b - a);
                 let mut labels = Vec::new();

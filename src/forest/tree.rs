@@ -43,21 +43,69 @@ pub(crate) struct Tree {
 }
 
 impl Tree {
-    /// Leaf reached by a vertex whose `φ²` row is `row`, with the shape's weight table `table`
-    /// (`levels × k`).
-    #[inline]
-    pub(crate) fn leaf(&self, table: &[f32], k: usize, row: &[f32]) -> usize {
-        let mut n = 0usize;
-        loop {
-            let node = &self.nodes[n];
-            if node.k_bar == 0 {
-                return node.left as usize;
+    /// The leaf reached by each row `rows(v)` (a vertex's `φ²` row, with the shape's weight
+    /// table `table`, `levels × k`) for `v` in `vertices`, into `out` (stride `stride`): with AVX where the CPU has it, the same leaves (the split values are the same
+    /// bits, see [`crate::descriptor::dot_f32`]).
+    pub(crate) fn leaves_into<'r>(
+        &self,
+        table: &[f32],
+        k: usize,
+        rows: impl Fn(usize) -> &'r [f32],
+        vertices: std::ops::Range<usize>,
+        out: &mut [u32],
+        stride: usize,
+    ) {
+        #[allow(clippy::too_many_arguments)]
+        #[inline(always)]
+        fn walk<'r>(
+            tree: &Tree,
+            table: &[f32],
+            k: usize,
+            rows: &impl Fn(usize) -> &'r [f32],
+            vertices: std::ops::Range<usize>,
+            out: &mut [u32],
+            stride: usize,
+            dot: impl Fn(&[f32], &[f32]) -> f32,
+        ) {
+            let first = vertices.start;
+            for v in vertices {
+                let row = rows(v);
+                let mut n = 0usize;
+                let leaf = loop {
+                    let node = &tree.nodes[n];
+                    if node.k_bar == 0 {
+                        break node.left;
+                    }
+                    let kb = node.k_bar as usize;
+                    let w = &table[node.energy as usize * k..node.energy as usize * k + kb];
+                    n = if dot(w, &row[..kb]) > node.threshold { node.right } else { node.left } as usize;
+                };
+                out[(v - first) * stride] = leaf;
             }
-            let kb = node.k_bar as usize;
-            let w = &table[node.energy as usize * k..node.energy as usize * k + kb];
-            let p = dot_f32(w, &row[..kb]);
-            n = if p > node.threshold { node.right } else { node.left } as usize;
         }
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx")]
+        unsafe fn with_avx<'r>(
+            tree: &Tree,
+            table: &[f32],
+            k: usize,
+            rows: &impl Fn(usize) -> &'r [f32],
+            vertices: std::ops::Range<usize>,
+            out: &mut [u32],
+            stride: usize,
+        ) {
+            // SAFETY: AVX is enabled in this function.
+            walk(tree, table, k, rows, vertices, out, stride, |a, b| unsafe {
+                crate::descriptor::dot_f32_avx(a, b)
+            });
+        }
+        #[cfg(target_arch = "x86_64")]
+        if simd_dots() {
+            // SAFETY: the CPU supports AVX (checked by `simd_dots`).
+            unsafe { with_avx(self, table, k, &rows, vertices, out, stride) };
+            return;
+        }
+        walk(self, table, k, &rows, vertices, out, stride, dot_f32);
     }
 
     /// Sparse distribution of leaf `i`.
@@ -119,11 +167,55 @@ struct Scratch {
     counts_l: Vec<u32>,
     counts_r: Vec<u32>,
     keys: Vec<u64>,
+    /// The radix sort's second buffer.
+    spare: Vec<u64>,
 }
 
 impl Scratch {
     fn new(n_labels: usize) -> Self {
-        Self { counts_l: vec![0; n_labels], counts_r: vec![0; n_labels], keys: Vec::new() }
+        Self { counts_l: vec![0; n_labels], counts_r: vec![0; n_labels], keys: Vec::new(), spare: Vec::new() }
+    }
+}
+
+/// Below this many keys a comparison sort is faster than the radix sort.
+const RADIX_MIN: usize = 512;
+
+/// Sorts `keys` ascending: a least-significant-digit radix sort on bytes (skipping the bytes
+/// that all keys share, e.g. the high bytes of the labels and of the values' exponents) for
+/// large nodes, the standard unstable sort for small ones. Equal keys are identical, so the
+/// result is the same either way. `spare` is reused scratch space. (Written here rather than
+/// taken from a crate such as `radsort`, which allocates its buffer on every call: the split
+/// search sorts thousands of times per tree.)
+fn sort_keys(keys: &mut Vec<u64>, spare: &mut Vec<u64>) {
+    let m = keys.len();
+    if m < RADIX_MIN {
+        keys.sort_unstable();
+        return;
+    }
+    let mut hist = [[0u32; 256]; 8];
+    for &x in keys.iter() {
+        for (d, h) in hist.iter_mut().enumerate() {
+            h[((x >> (8 * d)) & 0xFF) as usize] += 1;
+        }
+    }
+    spare.clear();
+    spare.resize(m, 0);
+    for (d, h) in hist.iter().enumerate() {
+        if h.iter().any(|&c| c as usize == m) {
+            continue; // every key has the same byte here
+        }
+        let mut offsets = [0u32; 256];
+        let mut acc = 0u32;
+        for (o, &c) in offsets.iter_mut().zip(h) {
+            *o = acc;
+            acc += c;
+        }
+        for &x in keys.iter() {
+            let b = ((x >> (8 * d)) & 0xFF) as usize;
+            spare[offsets[b] as usize] = x;
+            offsets[b] += 1;
+        }
+        std::mem::swap(keys, spare);
     }
 }
 
@@ -145,7 +237,7 @@ fn sweep(
     sc.keys.extend(
         labels.iter().enumerate().map(|(i, &y)| ((ord_bits(feats[i * n_cand + c]) as u64) << 32) | y as u64),
     );
-    sc.keys.sort_unstable();
+    sort_keys(&mut sc.keys, &mut sc.spare);
     for &y in labels {
         sc.counts_r[y as usize] += 1;
     }
@@ -182,6 +274,56 @@ fn sweep(
         }
         (score, t)
     })
+}
+
+/// Whether [`sample_features`] may use AVX (checked once per node).
+fn simd_dots() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// The values `p(m; e, k̄)` of sample `s` for every candidate `(e, k̄)`, into `out` (the same
+/// bits with `avx` as without: see [`crate::descriptor::dot_f32`]).
+#[inline]
+fn sample_features(data: &TrainData, cands: &[(u32, u16)], s: usize, out: &mut [f32], avx: bool) {
+    #[inline(always)]
+    fn body(
+        data: &TrainData,
+        cands: &[(u32, u16)],
+        s: usize,
+        out: &mut [f32],
+        dot: impl Fn(&[f32], &[f32]) -> f32,
+    ) {
+        let k = data.k;
+        let sh = data.sample_shape[s] as usize;
+        let row = data.shapes[sh].row(data.sample_vertex[s] as usize);
+        let table = &data.tables[sh];
+        for (f, &(e, kb)) in out.iter_mut().zip(cands) {
+            let kb = kb as usize;
+            let w = &table[e as usize * k..e as usize * k + kb];
+            *f = dot(w, &row[..kb]);
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx")]
+    unsafe fn with_avx(data: &TrainData, cands: &[(u32, u16)], s: usize, out: &mut [f32]) {
+        // SAFETY: AVX is enabled in this function.
+        body(data, cands, s, out, |a, b| unsafe { crate::descriptor::dot_f32_avx(a, b) });
+    }
+    #[cfg(target_arch = "x86_64")]
+    if avx {
+        // SAFETY: the caller checked that the CPU supports AVX (`simd_dots`).
+        unsafe { with_avx(data, cands, s, out) };
+        return;
+    }
+    let _ = avx;
+    body(data, cands, s, out, dot_f32);
 }
 
 /// Grows one tree on a bagged subset of `data`'s samples.
@@ -245,17 +387,9 @@ pub(crate) fn grow_tree(data: &TrainData, p: &RandomForestParams, index: u64) ->
             }
             feats.clear();
             feats.resize(m * n_cand, 0.0);
-            let fill = |(chunk, s): (&mut [f32], &u32)| {
-                let s = *s as usize;
-                let sh = data.sample_shape[s] as usize;
-                let row = data.shapes[sh].row(data.sample_vertex[s] as usize);
-                let table = &data.tables[sh];
-                for (f, &(e, kb)) in chunk.iter_mut().zip(&cands) {
-                    let kb = kb as usize;
-                    let w = &table[e as usize * k..e as usize * k + kb];
-                    *f = dot_f32(w, &row[..kb]);
-                }
-            };
+            let avx = simd_dots();
+            let cands = &cands[..];
+            let fill = |(chunk, s): (&mut [f32], &u32)| sample_features(data, cands, *s as usize, chunk, avx);
             let large = m >= p.parallel_node_size;
             let results: Vec<Option<(f64, f32)>> = if large {
                 feats.par_chunks_mut(n_cand).zip(samples.par_iter()).for_each(fill);
@@ -346,6 +480,26 @@ mod tests {
         }
         for &x in &xs {
             assert_eq!(from_ord_bits(ord_bits(x)).to_bits(), x.to_bits());
+        }
+    }
+
+    #[test]
+    fn radix_sort_equals_the_standard_sort() {
+        // Keys as the split search builds them: order-preserving value bits over a label, with
+        // repeated values, negative and positive values and constant bytes.
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for m in [0, 1, 7, RADIX_MIN - 1, RADIX_MIN, 5000] {
+            let keys: Vec<u64> = (0..m)
+                .map(|_| {
+                    let v: f32 = if rng.random_bool(0.2) { 0.5 } else { rng.random_range(-3.0..3.0) };
+                    ((ord_bits(v) as u64) << 32) | rng.random_range(0..70_000u64)
+                })
+                .collect();
+            let mut want = keys.clone();
+            want.sort_unstable();
+            let (mut got, mut spare) = (keys, Vec::new());
+            sort_keys(&mut got, &mut spare);
+            assert_eq!(got, want, "{m} keys");
         }
     }
 

@@ -659,20 +659,6 @@ mod tests {
         assert!(padding.map(|i| rt[i]).all(|x| x == 0.0), "padding lanes stay zero");
     }
 
-    /// A strip `len` squares long and 2 wide (unit squares, two triangles each), open.
-    fn strip(len: usize) -> Mesh {
-        let vertices = (0..=len).flat_map(|i| (0..3).map(move |j| [i as f64, j as f64, 0.0])).collect();
-        let faces = (0..len)
-            .flat_map(|i| {
-                (0..2).flat_map(move |j| {
-                    let (a, b, c, d) = (3 * i + j, 3 * i + j + 1, 3 * (i + 1) + j, 3 * (i + 1) + j + 1);
-                    [[a, c, d], [a, d, b]]
-                })
-            })
-            .collect();
-        Mesh::new(vertices, faces).unwrap()
-    }
-
     #[test]
     fn power_of_two_source_changes_nothing_where_the_heat_is_normal() {
         // On a sphere the unit-source heat stays far above the subnormal range: the scaled
@@ -695,19 +681,21 @@ mod tests {
         // Some 850 edge lengths from the source a unit heat underflows to zero (its far field
         // has no gradient, so the distance there is whatever the Poisson solve fills in); the
         // scaled source keeps the heat normal and the distance along the strip right.
+        // a strip of unit squares, LEN long and 2 wide; vertex j · nx + i at (i, j)
         const LEN: usize = 1100;
-        let m = strip(LEN);
+        let nx = LEN + 1;
+        let m = crate::synth::grid_plane(nx, 3, LEN as f64, 2.0);
         let mut solver = HeatMethodSolver::new(&m, HeatParams::default()).unwrap();
-        let far = m.n_vertices() - 2; // middle row, last column
+        let (source, far) = (nx, 2 * nx - 1); // both ends of the middle row
         let err = |d: &[f64]| (d[far] - LEN as f64).abs() / LEN as f64;
-        let scaled = solver.distances_from(1).unwrap();
+        let scaled = solver.distances_from(source).unwrap();
         assert!(err(&scaled) < 0.01, "scaled source: far end at {} ({LEN} expected)", scaled[far]);
         // the distance grows along the strip's middle row
-        let mid: Vec<f64> = (0..=LEN).map(|i| scaled[3 * i + 1]).collect();
+        let mid = &scaled[nx..2 * nx];
         assert!(mid.windows(2).all(|w| w[1] > w[0]), "distance along the strip is monotone");
         solver.source_heat = 1.0;
-        let unit = solver.distances_from(1).unwrap();
-        let unit_mid: Vec<f64> = (0..=LEN).map(|i| unit[3 * i + 1]).collect();
+        let unit = solver.distances_from(source).unwrap();
+        let unit_mid = &unit[nx..2 * nx];
         assert!(
             !unit_mid.windows(2).all(|w| w[1] > w[0]) || err(&unit) > 0.01,
             "the unit source was expected to fail here (far end {}), so this test shows nothing",

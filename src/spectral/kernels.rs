@@ -69,10 +69,17 @@ fn accumulate_dots<const B: usize>(
     w: &[&[f64]; B],
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU supports AVX2 and FMA, checked just above.
-        unsafe { accumulate_dots_avx2::<B>(out, cols, start, end, w) };
-        return;
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F, checked just above.
+            unsafe { avx512::accumulate_dots::<B>(out, cols, start, end, w) };
+            return;
+        }
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+            // SAFETY: the CPU supports AVX2 and FMA, checked just above.
+            unsafe { accumulate_dots_avx2::<B>(out, cols, start, end, w) };
+            return;
+        }
     }
     accumulate_dots_impl::<B, false>(out, cols, start, end, w);
 }
@@ -194,10 +201,17 @@ fn nn_fixed<const B: usize>(basis: MatRef<'_, f64>, c: MatRef<'_, f64>, w: MatMu
 /// `parts[j][r] -= Σ_i basis_i[start + r] · h[i][j]` for the rows of one chunk.
 fn subtract_chunk<const B: usize>(cols: &[&[f64]], h: &[[f64; B]], start: usize, parts: &mut [&mut [f64]]) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU supports AVX2 and FMA, checked just above.
-        unsafe { subtract_chunk_avx2::<B>(cols, h, start, parts) };
-        return;
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F, checked just above.
+            unsafe { avx512::subtract_chunk::<B>(cols, h, start, parts) };
+            return;
+        }
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+            // SAFETY: the CPU supports AVX2 and FMA, checked just above.
+            unsafe { subtract_chunk_avx2::<B>(cols, h, start, parts) };
+            return;
+        }
     }
     subtract_chunk_impl::<B, false>(cols, h, start, parts);
 }
@@ -253,6 +267,235 @@ fn subtract_chunk_impl<const B: usize, const FMA: bool>(
     }
 }
 
+/// AVX-512 versions of the two kernels, register-blocked (several basis columns and several
+/// columns of `w` per pass over a row range, so that each load feeds several FMAs), with the
+/// same operations in the same order for every output entry as the AVX2 kernels:
+/// - `accumulate_dots`: per entry and row chunk, eight lanes (rows `r ≡ 0..8 mod 8`, lanes 0–3
+///   and 4–7 being [`dot_fma`]'s two accumulators), reduced as `dot_fma` reduces them, the
+///   chunk's tail rows added one by one, then added to the entry;
+/// - `subtract_chunk`: per entry, one FMA per basis column in ascending column order.
+///
+/// So their results are bit for bit those of the AVX2 kernels.
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use std::arch::x86_64::*;
+
+    /// Basis columns per block of `accumulate_dots` (with up to 8 columns of `w`: 24
+    /// accumulators of the 32 registers).
+    const DOT_COLS: usize = 3;
+    /// Basis columns and `w` columns per block of `subtract_chunk`.
+    const SUB_COLS: usize = 4;
+    const SUB_W: usize = 4;
+    /// Rows of `w` kept in L1 while the basis columns stream through `subtract_chunk`.
+    const SUB_ROWS: usize = 256;
+
+    /// Sum of the eight lanes in [`super::dot_fma`]'s order (lane `p` and `p + 4` first).
+    #[inline(always)]
+    unsafe fn reduce(a: __m512d) -> f64 {
+        let mut l = [0.0f64; 8];
+        // SAFETY: `l` holds 8 doubles.
+        unsafe { _mm512_storeu_pd(l.as_mut_ptr(), a) };
+        ((l[0] + l[4]) + (l[1] + l[5])) + ((l[2] + l[6]) + (l[3] + l[7]))
+    }
+
+    /// `out[i][j] += Σ_r basis_i[r] w_j[r - start]` over `start..end` (see the module's
+    /// `accumulate_dots`).
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn accumulate_dots<const B: usize>(
+        out: &mut [[f64; B]],
+        cols: &[&[f64]],
+        start: usize,
+        end: usize,
+        w: &[&[f64]; B],
+    ) {
+        let len = end - start;
+        let full = len / 8 * 8;
+        let w: [&[f64]; B] = std::array::from_fn(|j| &w[j][..len]);
+        let mut i = 0;
+        while i < cols.len() {
+            let ib = DOT_COLS.min(cols.len() - i);
+            let mut j = 0;
+            while j < B {
+                let jb = 8.min(B - j);
+                // SAFETY: AVX-512F is enabled; every slice read has at least `len` elements.
+                unsafe {
+                    match (ib, jb) {
+                        (3, 8) => block_dots::<3, 8, B>(out, cols, i, j, start, len, full, &w),
+                        (3, 4) => block_dots::<3, 4, B>(out, cols, i, j, start, len, full, &w),
+                        (2, 8) => block_dots::<2, 8, B>(out, cols, i, j, start, len, full, &w),
+                        (2, 4) => block_dots::<2, 4, B>(out, cols, i, j, start, len, full, &w),
+                        (1, 8) => block_dots::<1, 8, B>(out, cols, i, j, start, len, full, &w),
+                        (1, 4) => block_dots::<1, 4, B>(out, cols, i, j, start, len, full, &w),
+                        _ => {
+                            for ii in i..i + ib {
+                                for jj in j..j + jb {
+                                    out[ii][jj] += super::dot_fma(&cols[ii][start..end], w[jj]);
+                                }
+                            }
+                        }
+                    }
+                }
+                j += jb;
+            }
+            i += ib;
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    unsafe fn block_dots<const IB: usize, const JB: usize, const B: usize>(
+        out: &mut [[f64; B]],
+        cols: &[&[f64]],
+        i0: usize,
+        j0: usize,
+        start: usize,
+        len: usize,
+        full: usize,
+        w: &[&[f64]; B],
+    ) {
+        let v: [&[f64]; IB] = std::array::from_fn(|a| &cols[i0 + a][start..start + len]);
+        let wb: [&[f64]; JB] = std::array::from_fn(|b| w[j0 + b]);
+        // SAFETY (whole block): AVX-512F is enabled by the caller; loads read rows k..k+8 with
+        // k + 8 <= full <= len, in bounds of every slice.
+        unsafe {
+            let mut acc = [[_mm512_setzero_pd(); JB]; IB];
+            let mut k = 0;
+            while k < full {
+                let vv: [__m512d; IB] = std::array::from_fn(|a| _mm512_loadu_pd(v[a].as_ptr().add(k)));
+                for b in 0..JB {
+                    let x = _mm512_loadu_pd(wb[b].as_ptr().add(k));
+                    for a in 0..IB {
+                        acc[a][b] = _mm512_fmadd_pd(vv[a], x, acc[a][b]);
+                    }
+                }
+                k += 8;
+            }
+            for a in 0..IB {
+                for b in 0..JB {
+                    let mut s = reduce(acc[a][b]);
+                    for r in full..len {
+                        s = v[a][r].mul_add(wb[b][r], s);
+                    }
+                    out[i0 + a][j0 + b] += s;
+                }
+            }
+        }
+    }
+
+    /// `parts[j][r] -= Σ_i basis_i[start + r] · h[i][j]` (see the module's `subtract_chunk`).
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn subtract_chunk<const B: usize>(
+        cols: &[&[f64]],
+        h: &[[f64; B]],
+        start: usize,
+        parts: &mut [&mut [f64]],
+    ) {
+        assert_eq!(parts.len(), B);
+        let len = parts[0].len();
+        for p in parts.iter() {
+            assert_eq!(p.len(), len);
+        }
+        let m = cols.len();
+        let wp: Vec<*mut f64> = parts.iter_mut().map(|p| p.as_mut_ptr()).collect();
+        let mut lo = 0;
+        while lo < len {
+            let hi = (lo + SUB_ROWS).min(len);
+            let rows = hi - lo;
+            let full = rows / 8 * 8;
+            let mut i = 0;
+            while i < m {
+                let ib = SUB_COLS.min(m - i);
+                let mut j = 0;
+                while j < B {
+                    let jb = SUB_W.min(B - j);
+                    // SAFETY: AVX-512F is enabled; every pointer offset stays below `lo + rows`
+                    // (≤ len) in `parts` and below `start + hi` in the basis columns, and the
+                    // `parts` slices are distinct.
+                    unsafe {
+                        if ib == SUB_COLS && jb == SUB_W {
+                            block_subtract::<B>(cols, h, i, j, start + lo, lo, full, &wp);
+                        } else {
+                            for b in j..j + jb {
+                                for a in i..i + ib {
+                                    let c = _mm512_set1_pd(-h[a][b]);
+                                    let v = cols[a].as_ptr().add(start + lo);
+                                    let w = wp[b].add(lo);
+                                    let mut k = 0;
+                                    while k < full {
+                                        let x = _mm512_fmadd_pd(
+                                            _mm512_loadu_pd(v.add(k)),
+                                            c,
+                                            _mm512_loadu_pd(w.add(k)),
+                                        );
+                                        _mm512_storeu_pd(w.add(k), x);
+                                        k += 8;
+                                    }
+                                }
+                            }
+                        }
+                    }
+                    // The rows after the last multiple of 8, column by column in order.
+                    for b in j..j + jb {
+                        let wj = &mut parts[b][lo..hi];
+                        for r in full..rows {
+                            let mut x = wj[r];
+                            for a in i..i + ib {
+                                x = cols[a][start + lo + r].mul_add(-h[a][b], x);
+                            }
+                            wj[r] = x;
+                        }
+                    }
+                    j += jb;
+                }
+                i += ib;
+            }
+            lo = hi;
+        }
+    }
+
+    /// Rows `0..full` (from basis row `vrow` and `w` row `wrow`) of a block of `SUB_COLS`
+    /// basis columns from `i0` and `SUB_W` columns of `w` from `j0`: each 8-row load of a basis
+    /// column feeds `SUB_W` FMAs.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    unsafe fn block_subtract<const B: usize>(
+        cols: &[&[f64]],
+        h: &[[f64; B]],
+        i0: usize,
+        j0: usize,
+        vrow: usize,
+        wrow: usize,
+        full: usize,
+        wp: &[*mut f64],
+    ) {
+        // SAFETY: see the caller.
+        unsafe {
+            let c: [[__m512d; SUB_COLS]; SUB_W] =
+                std::array::from_fn(|b| std::array::from_fn(|a| _mm512_set1_pd(-h[i0 + a][j0 + b])));
+            let v: [*const f64; SUB_COLS] = std::array::from_fn(|a| cols[i0 + a].as_ptr().add(vrow));
+            let w: [*mut f64; SUB_W] = std::array::from_fn(|b| wp[j0 + b].add(wrow));
+            let mut k = 0;
+            while k < full {
+                let vv: [__m512d; SUB_COLS] = std::array::from_fn(|a| _mm512_loadu_pd(v[a].add(k)));
+                for b in 0..SUB_W {
+                    let mut x = _mm512_loadu_pd(w[b].add(k));
+                    for a in 0..SUB_COLS {
+                        x = _mm512_fmadd_pd(vv[a], c[b][a], x);
+                    }
+                    _mm512_storeu_pd(w[b].add(k), x);
+                }
+                k += 8;
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -270,6 +513,61 @@ mod tests {
         nn_subtract(v.as_ref(), c.as_ref(), w2.as_mut());
         let w_ref = &w - &v * &c;
         assert!((&w2 - &w_ref).norm_max() < 1e-9);
+    }
+
+    /// The AVX-512 kernels give the AVX2 kernels' results bit for bit (so the spectrum does not
+    /// depend on which one the CPU runs), on row ranges with a tail and column counts that are
+    /// not multiples of the blocks.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx512_kernels_equal_the_avx2_ones_bit_for_bit() {
+        let has = |f: &str| match f {
+            "avx512f" => std::arch::is_x86_feature_detected!("avx512f"),
+            _ => std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma"),
+        };
+        if !has("avx512f") || !has("avx2") {
+            eprintln!("this CPU lacks AVX-512F or AVX2/FMA: nothing to compare");
+            return;
+        }
+        fn check<const B: usize>() {
+            let (n, m) = (1000 + 13, 11);
+            let cols_data: Vec<Vec<f64>> = (0..m)
+                .map(|i| (0..n).map(|r| (((r * 7 + i * 13) % 29) as f64 / 7.0 - 1.9).sin()).collect())
+                .collect();
+            let cols: Vec<&[f64]> = cols_data.iter().map(|c| &c[..]).collect();
+            let (start, end) = (5, n - 3);
+            let w_data: Vec<Vec<f64>> = (0..B)
+                .map(|j| (0..end - start).map(|r| ((r * 3 + j * 5) as f64 * 0.37).cos()).collect())
+                .collect();
+            let w: [&[f64]; B] = std::array::from_fn(|j| &w_data[j][..]);
+            let mut a = vec![[0.25f64; B]; m];
+            let mut b = a.clone();
+            // SAFETY: both features were detected above.
+            unsafe {
+                accumulate_dots_avx2::<B>(&mut a, &cols, start, end, &w);
+                avx512::accumulate_dots::<B>(&mut b, &cols, start, end, &w);
+            }
+            for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+                assert_eq!(x.to_bits(), y.to_bits(), "dots: {x} vs {y}");
+            }
+            let h: Vec<[f64; B]> =
+                (0..m).map(|i| std::array::from_fn(|j| ((i * B + j) as f64).sin())).collect();
+            let mut p1 = w_data.clone();
+            let mut p2 = w_data.clone();
+            let mut s1: Vec<&mut [f64]> = p1.iter_mut().map(|v| &mut v[..]).collect();
+            let mut s2: Vec<&mut [f64]> = p2.iter_mut().map(|v| &mut v[..]).collect();
+            // SAFETY: both features were detected above.
+            unsafe {
+                subtract_chunk_avx2::<B>(&cols, &h, start, &mut s1);
+                avx512::subtract_chunk::<B>(&cols, &h, start, &mut s2);
+            }
+            for (x, y) in p1.iter().flatten().zip(p2.iter().flatten()) {
+                assert_eq!(x.to_bits(), y.to_bits(), "subtract: {x} vs {y}");
+            }
+        }
+        check::<4>();
+        check::<8>();
+        check::<16>();
     }
 
     #[test]
