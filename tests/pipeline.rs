@@ -214,6 +214,30 @@ fn panicking_job_fails_alone(workers: usize) {
     assert!(!report.interrupted);
 }
 
+/// Jobs counted by [`count_job`] (the hook is a plain `fn()`, so the count is a static).
+static AFTER_JOB_CALLS: AtomicUsize = AtomicUsize::new(0);
+
+fn count_job() {
+    AFTER_JOB_CALLS.fetch_add(1, Ordering::SeqCst);
+}
+
+#[test]
+fn the_after_job_hook_runs_once_per_job_of_every_stage_and_sink() {
+    // The daemon returns freed memory to the system there; here it only counts.
+    let tmp = tempfile::tempdir().unwrap();
+    let (alive, peak) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicUsize::new(0)));
+    let got = Arc::new(Mutex::new(Vec::new()));
+    let mut p = Pipeline::new(DataDir::new(tmp.path()), Arc::new(LiveModel::new())).with_capacity(1);
+    let nums = p.source("numbers", Numbers { n: 9, alive: alive.clone(), peak });
+    let squares = p.stage("square", nums, Fragile);
+    p.sink("collect", squares, Collect { alive, got: got.clone() });
+    AFTER_JOB_CALLS.store(0, Ordering::SeqCst);
+    p.run(RunOptions { after_job: Some(count_job), ..Default::default() }).unwrap();
+    assert_eq!(got.lock().unwrap().len(), 9);
+    // 9 jobs through `square` (3 of them panic: the hook still runs) and 9 into the sink
+    assert_eq!(AFTER_JOB_CALLS.load(Ordering::SeqCst), 18);
+}
+
 #[test]
 fn an_output_feeds_every_consumer_attached_to_it() {
     for workers in [1, 2] {

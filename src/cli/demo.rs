@@ -137,8 +137,12 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let shutdown = Shutdown::new();
     let daemon = {
         let (spec, out, sd) = (spec.clone(), args.out.clone(), shutdown.clone());
-        let options =
-            RunOptions { handle_signals: true, on_signal: Some(super::run::on_signal), ..Default::default() };
+        let options = RunOptions {
+            handle_signals: true,
+            on_signal: Some(super::run::on_signal),
+            after_job: super::run::long_running_allocator(),
+            ..Default::default()
+        };
         thread::spawn(move || run_spec(&spec, Some(&out), options, Some(sd), |_| Ok(())))
     };
     let deadline = Instant::now() + Duration::from_secs(args.timeout);

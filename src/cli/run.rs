@@ -65,6 +65,40 @@ fn options(stop_after: Option<f64>) -> RunOptions {
         worker_threads: None,
         stop_after: stop_after.map(|s| std::time::Duration::from_secs_f64(s.max(0.0))),
         metrics_every: Some(std::time::Duration::from_secs(60)),
+        after_job: long_running_allocator(),
+    }
+}
+
+/// Allocator settings for a long-running pipeline (the daemon, `run`, a worker), returning the
+/// function to call after each job ([`RunOptions::after_job`]).
+///
+/// With glibc's defaults a burst of scans left far more memory resident than the jobs held:
+/// each thread of the blocking pool gets an arena of its own, and freed blocks stay in them.
+/// Measured with `examples/daemon_throughput.rs` (30 scans of 20K vertices, under load): peak
+/// RSS 1.61 GB by default, 1.09–1.20 GB with at most 2 arenas, 0.90 GB with 2 arenas and
+/// `malloc_trim` after each job (jemalloc as the allocator instead: 1.15 GB). So: at most 2
+/// arenas (one per core of the machines this runs on; an explicit `MALLOC_ARENA_MAX` in the
+/// environment is kept), and what a job freed goes back to the system when it ends.
+pub(crate) fn long_running_allocator() -> Option<fn()> {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        if std::env::var_os("MALLOC_ARENA_MAX").is_none() {
+            // SAFETY: mallopt only changes allocator tuning; 2 is a valid arena limit.
+            unsafe {
+                libc::mallopt(libc::M_ARENA_MAX, 2);
+            }
+        }
+        fn trim() {
+            // SAFETY: malloc_trim only returns free memory to the system; any pad is valid.
+            unsafe {
+                libc::malloc_trim(0);
+            }
+        }
+        Some(trim)
+    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    {
+        None
     }
 }
 

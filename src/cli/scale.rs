@@ -120,6 +120,7 @@ fn options(stop_after: Option<f64>) -> shapeforest::pipeline::RunOptions {
         worker_threads: None,
         stop_after: stop_after.map(|s| Duration::from_secs_f64(s.max(0.0))),
         metrics_every: Some(Duration::from_secs(60)),
+        after_job: super::run::long_running_allocator(),
     }
 }
 

@@ -99,6 +99,9 @@ pub struct StageSummary {
     pub rejected: u64,
 }
 
+/// A function run after each job of a stage or sink ([`super::RunOptions::after_job`]).
+pub type AfterJob = fn();
+
 /// Everything the actors of one pipeline share: job numbers, the shutdown flag and metrics.
 #[derive(Clone)]
 pub struct PipelineContext {
@@ -108,6 +111,9 @@ pub struct PipelineContext {
     metrics: Arc<Mutex<Vec<Arc<StageMetrics>>>>,
     problems: Arc<Mutex<Vec<String>>>,
     summary: Arc<Mutex<Vec<String>>>,
+    /// Called on the blocking pool after each job of a stage or sink (see
+    /// [`super::RunOptions::after_job`]).
+    after_job: Arc<Mutex<Option<AfterJob>>>,
 }
 
 impl Default for PipelineContext {
@@ -131,7 +137,22 @@ impl PipelineContext {
             metrics: Arc::new(Mutex::new(Vec::new())),
             problems: Arc::default(),
             summary: Arc::default(),
+            after_job: Arc::default(),
         }
+    }
+
+    /// Sets the function called on the blocking pool after each job of a stage or sink
+    /// (`None`: nothing); [`super::Pipeline::run`] sets it from
+    /// [`super::RunOptions::after_job`].
+    pub fn set_after_job(&self, hook: Option<AfterJob>) {
+        if let Ok(mut h) = self.after_job.lock() {
+            *h = hook;
+        }
+    }
+
+    /// The function called after each job, if any.
+    pub fn after_job(&self) -> Option<AfterJob> {
+        self.after_job.lock().ok().and_then(|h| *h)
     }
 
     /// A new job number.
@@ -280,9 +301,11 @@ fn panic_message(p: Box<dyn std::any::Any + Send>) -> String {
 /// Runs `f` on `state` on the blocking pool and hands the state back with `f`'s result, or
 /// with the panic message if `f` panicked (the state survives a panicking job). `None` when the
 /// task was cancelled (the runtime is going down).
+/// `after` runs on the same thread once `f` has returned (and dropped what it freed).
 async fn on_blocking_pool<S, R>(
     mut state: S,
     f: impl FnOnce(&mut S) -> R + Send + 'static,
+    after: Option<fn()>,
 ) -> Option<(S, Result<R, String>)>
 where
     S: Send + 'static,
@@ -291,6 +314,9 @@ where
     tokio::task::spawn_blocking(move || {
         let r = std::panic::catch_unwind(AssertUnwindSafe(|| f(&mut state)))
             .map_err(|p| format!("panic: {}", panic_message(p)));
+        if let Some(after) = after {
+            after();
+        }
         (state, r)
     })
     .await
@@ -307,7 +333,7 @@ pub async fn run_source<S: Source>(
 ) {
     let problems = ctx.clone();
     let emitter = Emitter::new(out, ctx, metrics);
-    match on_blocking_pool(source, move |s| s.run(&emitter)).await {
+    match on_blocking_pool(source, move |s| s.run(&emitter), None).await {
         Some((_, Ok(Ok(())))) => tracing::debug!(source = %name, "source finished"),
         Some((_, Ok(Err(e)))) => {
             tracing::error!(source = %name, "source stopped: {e}");
@@ -331,6 +357,7 @@ pub async fn run_stage<S: Stage>(
     metrics: Arc<StageMetrics>,
 ) {
     let mut stage = Some(stage);
+    let after_job = ctx.after_job();
     while let Some(Envelope { job, body }) = rx.recv().await {
         let next = match body {
             Err(f) => {
@@ -345,7 +372,7 @@ pub async fn run_stage<S: Stage>(
                 let Some(s) = stage.take() else { break };
                 let t0 = Instant::now();
                 let Some(((s, mut job), r)) =
-                    on_blocking_pool((s, job), move |(s, job)| s.process(job, input)).await
+                    on_blocking_pool((s, job), move |(s, job)| s.process(job, input), after_job).await
                 else {
                     tracing::error!(stage = %name, "stage task was cancelled");
                     break;
@@ -398,7 +425,7 @@ pub async fn run_sink<S: Sink>(
             }
         }
     };
-    let Some((s, r)) = on_blocking_pool(sink, |s| s.start()).await else { return };
+    let Some((s, r)) = on_blocking_pool(sink, |s| s.start(), None).await else { return };
     log("start failed: ", r);
     let tick = s.tick();
     let mut sink = Some(s);
@@ -411,7 +438,7 @@ pub async fn run_sink<S: Sink>(
                     // Nothing arrived for a while: let the sink act on what it holds.
                     let Some(s) = sink.take() else { break };
                     let t0 = Instant::now();
-                    let Some((s, r)) = on_blocking_pool(s, |s| s.idle()).await else { break };
+                    let Some((s, r)) = on_blocking_pool(s, |s| s.idle(), None).await else { break };
                     if t0.elapsed() > Duration::from_millis(5) {
                         metrics.add_busy(t0.elapsed());
                     }
@@ -433,17 +460,21 @@ pub async fn run_sink<S: Sink>(
         let Some(s) = sink.take() else { break };
         let t0 = Instant::now();
         let waiting = rx.clone();
-        let consumed = on_blocking_pool(s, move |s| {
-            let r = s.consume(job, body);
-            // A durable queue acknowledges the job, or delivers it again, by this outcome.
-            waiting.consumed(r.as_ref().map(|_| ()).map_err(|e| e.to_string()));
-            // Let a batching sink act once nothing else is waiting.
-            if waiting.is_empty() {
-                r.and_then(|_| s.idle())
-            } else {
-                r
-            }
-        })
+        let consumed = on_blocking_pool(
+            s,
+            move |s| {
+                let r = s.consume(job, body);
+                // A durable queue acknowledges the job, or delivers it again, by this outcome.
+                waiting.consumed(r.as_ref().map(|_| ()).map_err(|e| e.to_string()));
+                // Let a batching sink act once nothing else is waiting.
+                if waiting.is_empty() {
+                    r.and_then(|_| s.idle())
+                } else {
+                    r
+                }
+            },
+            ctx.after_job(),
+        )
         .await;
         let Some((s, r)) = consumed else {
             tracing::error!(sink = %name, "sink task was cancelled");
@@ -459,7 +490,7 @@ pub async fn run_sink<S: Sink>(
     }
     if let Some(s) = sink {
         let t0 = Instant::now();
-        let finished = on_blocking_pool(s, |s| s.finish()).await;
+        let finished = on_blocking_pool(s, |s| s.finish(), None).await;
         metrics.add_busy(t0.elapsed());
         if let Some((_, r)) = finished {
             log("finish failed: ", r);

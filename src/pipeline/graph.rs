@@ -99,6 +99,11 @@ pub struct RunOptions {
     pub stop_after: Option<Duration>,
     /// Log every actor's metrics at this interval (`tracing` info; the daemon uses a minute).
     pub metrics_every: Option<Duration>,
+    /// Called on the blocking pool after each job of a stage or sink, on the thread that ran
+    /// it. The command-line daemon hands the memory the job freed back to the system there
+    /// (glibc's `malloc_trim`): a burst of scans otherwise leaves freed blocks resident in the
+    /// allocator's arenas. The library itself does not tune the process's allocator.
+    pub after_job: Option<fn()>,
 }
 
 /// What a finished pipeline did.
@@ -240,6 +245,7 @@ impl<X: Transport> Pipeline<X> {
     /// or until shutdown (signal, [`RunOptions::stop_after`], or the context's flag).
     pub fn run(self, options: RunOptions) -> Result<PipelineReport, Error> {
         let t0 = Instant::now();
+        self.ctx.set_after_job(options.after_job);
         let rt = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(options.worker_threads.unwrap_or(2).max(1))
             .thread_name("shapeforest-actor")
