@@ -160,13 +160,13 @@ pub struct EvalArgs {
     /// Basis functions added per ZoomOut step.
     #[arg(long, default_value_t = 5, value_name = "N")]
     pub zoomout_step: usize,
-    /// First basis size of ZoomOut.
-    #[arg(long, default_value_t = 20, value_name = "K")]
+    /// First basis size of ZoomOut (at most half the last one).
+    #[arg(long, default_value_t = 100, value_name = "K")]
     pub zoomout_start: usize,
     /// Last basis size of ZoomOut. More than the spectrum's eigenpairs (100) computes the
     /// reference's and every scan's spectrum again with this many for ZoomOut (the descriptors
     /// keep the first 100).
-    #[arg(long, default_value_t = 100, value_name = "K")]
+    #[arg(long, default_value_t = 200, value_name = "K")]
     pub zoomout_final: usize,
     /// Farthest-point samples per shape that ZoomOut's iterations run on.
     #[arg(long, default_value_t = 3000, value_name = "N")]
@@ -197,6 +197,27 @@ pub struct EvalArgs {
     /// forest candidates (0: none).
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub free_candidates: usize,
+    /// Also write `points.csv`: every evaluated point's error per method (strict and flips
+    /// allowed) and where it was mapped, for finding where the errors are.
+    #[arg(long)]
+    pub point_errors: bool,
+    /// With --pairs / --protocol: measure errors with first-order fast marching instead of the
+    /// heat method (closer to the exact geodesics of published tables at short range; slower).
+    #[arg(long)]
+    pub fast_marching_eval: bool,
+    /// Kernel width (× √area) of the choice among the refined, a coarse (20 → 100) ZoomOut and
+    /// the grown map by the forest's posterior (`regularizer::MapSelection`; 0: no choice).
+    #[arg(long, default_value_t = 0.02, value_name = "S")]
+    pub zoomout_select: f64,
+    /// Extrinsic refinement after ZoomOut (`regularizer::refine_extrinsic`): rounds (0: off).
+    #[arg(long, default_value_t = 3, value_name = "N")]
+    pub extrinsic_rounds: usize,
+    /// Weight of the coordinates in the extrinsic refinement.
+    #[arg(long, default_value_t = 1.0, value_name = "W")]
+    pub extrinsic_weight: f64,
+    /// Basis functions carrying the extrinsic refinement's deformation.
+    #[arg(long, default_value_t = 200, value_name = "K")]
+    pub extrinsic_k: usize,
 }
 
 impl EvalArgs {
@@ -209,6 +230,17 @@ impl EvalArgs {
             samples: self.zoomout_samples,
             radius: self.zoomout_radius,
             check_samples: self.zoomout_check,
+            extrinsic: (self.extrinsic_rounds > 0).then_some(shapeforest::regularizer::ExtrinsicParams {
+                rounds: self.extrinsic_rounds,
+                deformation_k: self.extrinsic_k,
+                weight: self.extrinsic_weight,
+                samples: self.zoomout_samples,
+            }),
+            select: (self.zoomout_select > 0.0).then_some(shapeforest::regularizer::MapSelection {
+                sigma: self.zoomout_select,
+                ..Default::default()
+            }),
+            ..Default::default()
         }
     }
 
@@ -750,6 +782,9 @@ pub fn run(args: EvalArgs) -> Result<()> {
     print!("{}", format_timings(&report));
     print!("{}", format_diagnoses(&report));
     write_outputs(&args.out, &class, &report, params.curve_steps)?;
+    if args.point_errors {
+        write_point_errors(&args.out, &report)?;
+    }
     super::visual::write_eval_pages(&args.out, &class.shapes, &report, &format_table(&report))?;
     println!(
         "wrote results.csv, timings.csv, curves.csv, curves.svg, peer/pairs.json, index.html, shapes/ to {}",
@@ -890,6 +925,31 @@ struct PeerPair {
 struct PeerPairs {
     pairs: Vec<PeerPair>,
     reference_symmetry: Option<Vec<usize>>,
+}
+
+/// `points.csv`: one line per test, evaluated point and method.
+fn write_point_errors(out: &Path, report: &ProtocolReport) -> Result<()> {
+    let mut csv = String::from("test,reference,label,method,strict,sym,mapped\n");
+    for t in &report.tests {
+        let labels = if t.labels.is_empty() { &report.eval_labels } else { &t.labels };
+        for m in &t.methods {
+            for (i, &e) in m.strict.iter().enumerate() {
+                let sym =
+                    m.symmetric.as_ref().and_then(|y| y.get(i)).map_or(String::new(), |y| format!("{y:.6}"));
+                let mapped =
+                    t.evaluated.get(i).and_then(|&v| m.map.get(v)).map_or(String::new(), |r| r.to_string());
+                let _ = writeln!(
+                    csv,
+                    "{},{},{},{},{e:.6},{sym},{mapped}",
+                    report.shape_names[t.test],
+                    report.shape_names[t.reference],
+                    labels.get(i).copied().unwrap_or(usize::MAX),
+                    m.method.name(),
+                );
+            }
+        }
+    }
+    write_file(&out.join("points.csv"), &csv)
 }
 
 fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usize) -> Result<()> {

@@ -134,6 +134,11 @@ pub fn run(
         cache_dir: (!args.no_cache).then(|| args.cache.clone()),
         regularizer: args.regularizer_params(true),
         zoomout: args.zoomout_params(),
+        eval_distances: if args.fast_marching_eval {
+            shapeforest::eval::pairs::EvalDistances::FastMarching
+        } else {
+            shapeforest::eval::pairs::EvalDistances::Heat
+        },
         ..PairsParams::default()
     };
     let pb = bar(args.quiet);
@@ -245,6 +250,29 @@ fn write_outputs(
         }
     }
     write_file(&out.join("pairs.csv"), &csv)?;
+    if args.point_errors {
+        // Every corresponded point of every pair: errors per method, strict and flips allowed.
+        let mut pts = String::from("a,b,k,method,strict,sym\n");
+        for p in &report.pairs {
+            for m in &p.methods {
+                for (k, &e) in m.strict.iter().enumerate() {
+                    let sym = m
+                        .symmetric
+                        .as_ref()
+                        .and_then(|y| y.get(k))
+                        .map_or(String::new(), |y| format!("{y:.6}"));
+                    let _ = writeln!(
+                        pts,
+                        "{},{},{k},{},{e:.6},{sym}",
+                        shapes[p.a].name,
+                        shapes[p.b].name,
+                        m.method.name()
+                    );
+                }
+            }
+        }
+        write_file(&out.join("points.csv"), &pts)?;
+    }
     let curves = report.curves(100);
     write_curves_csv(&out.join("curves.csv"), &curves)?;
     plot_curves_svg(&out.join("curves.svg"), &format!("{title}: pairs, cumulative geodesic error"), &curves)?;

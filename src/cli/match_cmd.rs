@@ -66,9 +66,9 @@ pub struct MatchArgs {
     pub no_zoomout: bool,
     /// Final basis size of the ZoomOut refinement. More than the model's eigenpairs (100)
     /// computes every shape's spectrum again with this many for ZoomOut alone (its precision
-    /// grows with the basis: FAUST pairs 1.78 → 1.56 mean error ×100 with 200), at the cost of
-    /// those spectra.
-    #[arg(long, default_value_t = 100, value_name = "K")]
+    /// grows with the basis: FAUST pairs 1.80 → 1.68 mean error ×100 with 200, README), at the
+    /// cost of those spectra.
+    #[arg(long, default_value_t = 200, value_name = "K")]
     pub zoomout_k: usize,
 }
 

@@ -27,7 +27,9 @@ use crate::spectral::Spectrum;
 mod partial;
 mod sampled;
 pub use partial::{partial_basis_size, point_to_point_partial, zoomout_partial_on_samples};
-pub use sampled::{point_to_point_in_cells, zoomout_on_samples, CellBalls, SampleCells, ZoomOutSchedule};
+pub use sampled::{
+    nearest_in_cells, point_to_point_in_cells, zoomout_on_samples, CellBalls, SampleCells, ZoomOutSchedule,
+};
 
 /// A functional-map computation failed.
 #[derive(Debug, Error)]

@@ -359,7 +359,7 @@ pub fn point_to_point_in_cells(
 /// For each query row `m`, the reference vertex whose row of `points` is nearest among the
 /// vertices of cell `coarse[m]` and its neighbouring cells (the fine step of a point map read
 /// back through [`SampleCells`]).
-pub(super) fn nearest_in_cells(
+pub fn nearest_in_cells(
     queries: MatRef<'_, f64>,
     points: MatRef<'_, f64>,
     reference_cells: &SampleCells,

@@ -101,8 +101,9 @@ pub fn refine_zoomout_partial(
 ) -> Result<Option<Vec<usize>>, Error> {
     // The shapes' ZoomOut bases (more eigenpairs than the descriptors' when they carry them).
     let (test_basis, reference_basis) = (test.zoomout_basis(), reference.zoomout_basis());
-    let k_final = params.k_final.min(reference_basis.k());
-    let schedule = ZoomOutSchedule { k_start: params.k_start.min(k_final), k_final, step: params.step };
+    let (k_start, k_final) = params.partial;
+    let k_final = k_final.min(reference_basis.k());
+    let schedule = ZoomOutSchedule { k_start: k_start.min(k_final), k_final, step: params.step };
     let test_cells = sample_cells(&test.mesh, params.samples)?;
     let reference_cells = sample_cells(&reference.mesh, params.samples)?;
     let c = zoomout_partial_on_samples(
@@ -177,8 +178,7 @@ mod tests {
                 neighbours[t][rng.random_range(0..neighbours[t].len())]
             })
             .collect();
-        let params =
-            ZoomOutParams { k_start: 10, k_final: 40, step: 3, samples: 100_000, ..Default::default() };
+        let params = ZoomOutParams { partial: (10, 40), step: 3, samples: 100_000, ..Default::default() };
         let score = |map: &[usize]| {
             map.iter().zip(&truth).filter(|(a, b)| a == b).count() as f64 / truth.len() as f64
         };

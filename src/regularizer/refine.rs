@@ -122,8 +122,8 @@ pub fn refine_zoomout(
 ) -> Result<Option<Vec<usize>>, Error> {
     // The shapes' ZoomOut bases: more eigenpairs than the descriptors' when they carry them.
     let (test_basis, reference_basis) = (test.zoomout_basis(), reference.zoomout_basis());
-    let k_final = params.k_final.min(test_basis.k()).min(reference_basis.k());
-    let schedule = ZoomOutSchedule { k_start: params.k_start.min(k_final), k_final, step: params.step };
+    let (k_start, k_final) = params.schedule(test_basis.k().min(reference_basis.k()));
+    let schedule = ZoomOutSchedule { k_start, k_final, step: params.step };
     let test_cells = sample_cells(&test.mesh, params.samples)?;
     let reference_cells = sample_cells(&reference.mesh, params.samples)?;
     let balls = params
@@ -142,6 +142,77 @@ pub fn refine_zoomout(
     let refined =
         point_to_point_in_cells(test_basis, reference_basis, &reference_cells, restrict, c.as_ref())?;
     kept_if_closer_to_isometry(test, reference, map, refined, params.check_samples)
+}
+
+/// For every test vertex, the image among those of `maps` (test vertex → reference vertex)
+/// where the forest's posterior is densest: each map's image scores
+/// `Σ_r p(r) exp(−|x_r − x_image|² / 2σ²)` over the vertex's candidates `r` (Euclidean, `σ` =
+/// `sigma` · √area of the reference), the scores are averaged over `rounds` passes of mesh
+/// neighbours (so that a region, not a vertex, chooses), and the best map's image is taken
+/// (the first map on ties).
+///
+/// ```
+/// use shapeforest::{mesh::Mesh, regularizer::select_by_posterior};
+/// let m = Mesh::new(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2]]).unwrap();
+/// // Every vertex's only candidate is vertex 1: the second map, which lands there, wins.
+/// let candidates: Vec<usize> = vec![1, 1, 1];
+/// let chosen = select_by_posterior(&m, &m, candidates.as_slice(), &[&[0, 2, 2], &[1, 1, 1]], 0.1, 0);
+/// assert_eq!(chosen, vec![1, 1, 1]);
+/// ```
+pub fn select_by_posterior<S: crate::fmap::SoftCorrespondence + ?Sized>(
+    test: &Mesh,
+    reference: &Mesh,
+    posterior: &S,
+    maps: &[&[usize]],
+    sigma: f64,
+    rounds: usize,
+) -> Vec<usize> {
+    use rayon::prelude::*;
+    let n = test.n_vertices();
+    if maps.is_empty() {
+        return Vec::new();
+    }
+    let s = sigma * reference.surface_area().max(f64::MIN_POSITIVE).sqrt();
+    let inv = 1.0 / (2.0 * s * s).max(f64::MIN_POSITIVE);
+    let pos = &reference.vertices;
+    let scores: Vec<Vec<f64>> = maps
+        .iter()
+        .map(|map| {
+            (0..n)
+                .into_par_iter()
+                .map(|m| {
+                    let q = pos[map[m]];
+                    let mut total = 0.0;
+                    posterior.for_each_entry(m, &mut |r, p| {
+                        if let Some(x) = pos.get(r) {
+                            let d2 = (x[0] - q[0]).powi(2) + (x[1] - q[1]).powi(2) + (x[2] - q[2]).powi(2);
+                            total += p * (-d2 * inv).exp();
+                        }
+                    });
+                    total
+                })
+                .collect()
+        })
+        .collect();
+    let (offsets, neighbours) = crate::mesh::face_neighbour_lists(&test.faces, n);
+    let smooth = |mut cur: Vec<f64>| {
+        let mut next = vec![0.0; n];
+        for _ in 0..rounds {
+            for v in 0..n {
+                let nb = &neighbours[offsets[v]..offsets[v + 1]];
+                next[v] = (cur[v] + nb.iter().map(|&u| cur[u]).sum::<f64>()) / (1 + nb.len()) as f64;
+            }
+            std::mem::swap(&mut cur, &mut next);
+        }
+        cur
+    };
+    let smoothed: Vec<Vec<f64>> = scores.into_iter().map(smooth).collect();
+    (0..n)
+        .map(|m| {
+            let best = (0..maps.len()).fold(0, |b, i| if smoothed[i][m] > smoothed[b][m] { i } else { b });
+            maps[best][m]
+        })
+        .collect()
 }
 
 /// `refined`, unless `check_samples` (> 0) farthest-point samples find it farther from an
@@ -208,6 +279,8 @@ mod tests {
             samples: n / 2,
             radius: None,
             check_samples: 0,
+            extrinsic: None,
+            ..Default::default()
         };
         let refined = refine_zoomout(&shape, &shape, &noisy, &params).unwrap().unwrap();
         let correct = refined.iter().enumerate().filter(|&(v, &r)| v == r).count();
@@ -235,8 +308,14 @@ mod tests {
         assert!(bad > 0.1, "{bad}");
         // Starting from the exact map, ZoomOut at too small a basis cannot improve it: a
         // refinement at least as good is kept, never a worse one.
-        let params =
-            ZoomOutParams { k_start: 3, k_final: 3, step: 1, samples: n, radius: None, check_samples: 30 };
+        let params = ZoomOutParams {
+            k_start: 3,
+            k_final: 3,
+            step: 1,
+            samples: n,
+            check_samples: 30,
+            ..Default::default()
+        };
         if let Some(r) = refine_zoomout(&shape, &shape, &identity, &params).unwrap() {
             let d = map_distortion(&shape, &fields, &samples, shape.sqrt_area(), &r).unwrap();
             assert!(d <= exact + 1e-12);

@@ -1,0 +1,133 @@
+//! The refinements after the regulariser on the synthetic family (same triangulation, other
+//! poses: the true map is the identity): ZoomOut's schedule and the extrinsic refinement.
+
+use std::sync::Arc;
+
+use rand::{Rng, SeedableRng};
+use shapeforest::{
+    eval::{geodesic_errors, ErrorSummary},
+    geodesic::HeatParams,
+    regularizer::{
+        refine_extrinsic, refine_zoomout, select_by_posterior, ExtrinsicParams, PreparedShape, ZoomOutParams,
+    },
+    spectral::{compute_spectrum, SpectrumParams},
+    synth::{creature_family, CreatureParams},
+};
+
+struct Pair {
+    test: PreparedShape,
+    reference: PreparedShape,
+    n: usize,
+}
+
+fn pair() -> Pair {
+    let fam = creature_family(&CreatureParams { target_vertices: 2500, seed: 11, ..Default::default() }, 2)
+        .unwrap();
+    let prepare = |i: usize| {
+        let mesh = Arc::new(fam.shapes[i].clone());
+        let spectrum = Arc::new(compute_spectrum(&mesh, &SpectrumParams::new(80)).unwrap());
+        PreparedShape::new(mesh, spectrum, HeatParams::default()).unwrap()
+    };
+    let (test, reference) = (prepare(0), prepare(1));
+    let n = test.mesh.n_vertices();
+    Pair { test, reference, n }
+}
+
+/// Errors (÷ √area) of `map` against the identity at every third vertex.
+fn summary(p: &Pair, map: &[usize]) -> ErrorSummary {
+    let evaluated: Vec<usize> = (0..p.n).step_by(3).collect();
+    let fields = p.reference.heat.distances_from_many(&evaluated).unwrap();
+    let (strict, _) =
+        geodesic_errors(map, &evaluated, fields.as_ref(), None, p.reference.mesh.surface_area()).unwrap();
+    ErrorSummary::of(&strict)
+}
+
+/// The identity with every vertex moved to a random mesh neighbour.
+fn off_by_a_ring(p: &Pair, seed: u64) -> Vec<usize> {
+    let mut neighbours = vec![Vec::new(); p.n];
+    for f in &p.test.mesh.faces {
+        for (a, b) in [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])] {
+            neighbours[a].push(b);
+            neighbours[b].push(a);
+        }
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    (0..p.n).map(|v| neighbours[v][rng.random_range(0..neighbours[v].len())]).collect()
+}
+
+#[test]
+fn zoomout_started_half_way_keeps_a_true_map_better_than_from_twenty() {
+    let p = pair();
+    let identity: Vec<usize> = (0..p.n).collect();
+    let run = |k_start: usize| {
+        let z = ZoomOutParams { k_start, k_final: 80, extrinsic: None, ..Default::default() };
+        summary(&p, &refine_zoomout(&p.test, &p.reference, &identity, &z).unwrap().unwrap())
+    };
+    let (from_20, half_way) = (run(20), run(ZoomOutParams::default().k_start));
+    eprintln!("from 20: {from_20:?}\nhalf way: {half_way:?}");
+    assert!(half_way.mean <= from_20.mean, "half way {half_way:?} vs from 20 {from_20:?}");
+    assert!(half_way.mean < 0.02, "{half_way:?}");
+}
+
+#[test]
+fn the_extrinsic_refinement_sharpens_a_map_off_by_a_ring() {
+    let p = pair();
+    let start = off_by_a_ring(&p, 5);
+    let before = summary(&p, &start);
+    let zoomed = refine_zoomout(
+        &p.test,
+        &p.reference,
+        &start,
+        &ZoomOutParams { extrinsic: None, ..Default::default() },
+    )
+    .unwrap()
+    .unwrap();
+    let zoomout_only = summary(&p, &zoomed);
+    let refined = refine_extrinsic(&p.test, &p.reference, &zoomed, &ExtrinsicParams::default()).unwrap();
+    let after = summary(&p, &refined);
+    eprintln!("start: {before:?}\nZoomOut: {zoomout_only:?}\n+ extrinsic: {after:?}");
+    assert!(after.mean < before.mean, "{after:?} vs start {before:?}");
+    assert!(after.mean <= zoomout_only.mean, "{after:?} vs ZoomOut alone {zoomout_only:?}");
+    // Without the coordinates (weight 0) the rounds are ZoomOut's own fixed point again.
+    let spectral = ExtrinsicParams { weight: 0.0, ..Default::default() };
+    let plain = summary(&p, &refine_extrinsic(&p.test, &p.reference, &zoomed, &spectral).unwrap());
+    assert!(after.mean <= plain.mean, "{after:?} vs no coordinates {plain:?}");
+}
+
+#[test]
+fn extrinsic_settings_are_checked() {
+    let p = pair();
+    let identity: Vec<usize> = (0..p.n).collect();
+    for (bad, what) in [
+        (ExtrinsicParams { deformation_k: 0, ..Default::default() }, "deformation_k"),
+        (ExtrinsicParams { weight: f64::NAN, ..Default::default() }, "weight"),
+        (ExtrinsicParams { samples: 0, ..Default::default() }, "samples"),
+    ] {
+        let err = refine_extrinsic(&p.test, &p.reference, &identity, &bad).unwrap_err().to_string();
+        assert!(err.contains(what), "{err}");
+    }
+    let short = refine_extrinsic(&p.test, &p.reference, &identity[1..], &ExtrinsicParams::default());
+    assert!(short.is_err());
+}
+
+#[test]
+fn the_map_the_posterior_supports_is_chosen_region_by_region() {
+    let p = pair();
+    let identity: Vec<usize> = (0..p.n).collect();
+    // A map whose upper half (by height on the test shape) is sent to the lowest vertex: a
+    // patch in the wrong place; the posterior's candidates are each vertex and its neighbours.
+    let (lo, hi) =
+        p.test.mesh.vertices.iter().fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(v[1]), b.max(v[1])));
+    let lowest =
+        (0..p.n).min_by(|&a, &b| p.test.mesh.vertices[a][1].total_cmp(&p.test.mesh.vertices[b][1])).unwrap();
+    let upper = |v: usize| p.test.mesh.vertices[v][1] > 0.5 * (lo + hi);
+    let patched: Vec<usize> = (0..p.n).map(|v| if upper(v) { lowest } else { v }).collect();
+    let rounds = shapeforest::regularizer::unflip_rounds(p.n);
+    // Either order: the identity wins where the maps differ, and where they agree nothing changes.
+    for maps in [[&patched[..], &identity[..]], [&identity[..], &patched[..]]] {
+        let chosen =
+            select_by_posterior(&p.test.mesh, &p.reference.mesh, identity.as_slice(), &maps, 0.02, rounds);
+        let right = chosen.iter().enumerate().filter(|&(v, &r)| v == r).count();
+        assert!(right * 100 >= p.n * 98, "{right} of {} vertices chose the supported map", p.n);
+    }
+}
