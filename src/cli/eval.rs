@@ -205,8 +205,8 @@ pub struct EvalArgs {
     /// heat method (closer to the exact geodesics of published tables at short range; slower).
     #[arg(long)]
     pub fast_marching_eval: bool,
-    /// Kernel width (× √area) of the choice among the refined, a coarse (20 → 100) ZoomOut and
-    /// the grown map by the forest's posterior (`regularizer::MapSelection`; 0: no choice).
+    /// Kernel width (× √area) of the choice between the refined map and a coarse (20 → 100)
+    /// ZoomOut's by the forest's posterior (`regularizer::MapSelection`; 0: no choice).
     #[arg(long, default_value_t = 0.02, value_name = "S")]
     pub zoomout_select: f64,
     /// Extrinsic refinement after ZoomOut (`regularizer::refine_extrinsic`): rounds (0: off).

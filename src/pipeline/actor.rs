@@ -305,7 +305,7 @@ fn panic_message(p: Box<dyn std::any::Any + Send>) -> String {
 async fn on_blocking_pool<S, R>(
     mut state: S,
     f: impl FnOnce(&mut S) -> R + Send + 'static,
-    after: Option<fn()>,
+    after: Option<AfterJob>,
 ) -> Option<(S, Result<R, String>)>
 where
     S: Send + 'static,
@@ -417,6 +417,7 @@ pub async fn run_sink<S: Sink>(
     ctx: PipelineContext,
 ) {
     let rx: Arc<dyn Receiver<S::In>> = Arc::from(rx);
+    let after_job = ctx.after_job();
     let log = |what: &str, r: Result<Result<(), Error>, String>| {
         if let Err(e) = r.map_err(Error::Panic).and_then(|r| r) {
             tracing::error!(sink = %name, "{what}{e}");
@@ -473,7 +474,7 @@ pub async fn run_sink<S: Sink>(
                     r
                 }
             },
-            ctx.after_job(),
+            after_job,
         )
         .await;
         let Some((s, r)) = consumed else {

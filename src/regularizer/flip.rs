@@ -109,9 +109,14 @@ pub fn map_orientation(test: &Mesh, reference: &Mesh, map: &[usize]) -> MapOrien
 /// `√rounds` edge lengths), so that a mirrored limb reads as one negative region and
 /// isolated folds do not.
 pub fn smoothed_orientation(test: &Mesh, orientation: &MapOrientation, rounds: usize) -> Vec<f64> {
-    let n = test.n_vertices();
-    let (offsets, neighbours) = crate::mesh::face_neighbour_lists(&test.faces, n);
-    let mut cur = orientation.per_vertex.clone();
+    let (offsets, neighbours) = crate::mesh::face_neighbour_lists(&test.faces, test.n_vertices());
+    diffuse(&offsets, &neighbours, orientation.per_vertex.clone(), rounds)
+}
+
+/// `rounds` passes of averaging each vertex's value with those of its face neighbours
+/// (`offsets`, `neighbours`: [`crate::mesh::face_neighbour_lists`]).
+pub(super) fn diffuse(offsets: &[usize], neighbours: &[usize], mut cur: Vec<f64>, rounds: usize) -> Vec<f64> {
+    let n = cur.len();
     let mut next = vec![0.0; n];
     for _ in 0..rounds {
         for v in 0..n {

@@ -229,8 +229,8 @@ pub struct ZoomOutParams {
     /// The extrinsic refinement after ZoomOut ([`refine_extrinsic`]; `None`: off). Default on.
     #[serde(default)]
     pub extrinsic: Option<ExtrinsicParams>,
-    /// A second, coarse ZoomOut and the choice, region by region, among the refined map, the
-    /// coarse one and the grown map ([`MapSelection`]; `None`: off). Default on.
+    /// A second, coarse ZoomOut and the choice, region by region, between the refined map and
+    /// the coarse one ([`MapSelection`]; `None`: off). Default on.
     #[serde(default)]
     pub select: Option<MapSelection>,
     /// First and final basis sizes of the partial ZoomOut of an open part
@@ -740,6 +740,26 @@ pub fn sparse_matches(
     })
 }
 
+/// `zoom` (a ZoomOut refinement) of `map`; where the reference's symmetry is known and the
+/// refined map reads mirrored in places (`unflip` at `threshold`), those places are repaired and
+/// the repaired map refined once more. ZoomOut's map is smooth, so its orientation tells
+/// mirrored limbs more clearly than the grown map's.
+fn zoomed_and_repaired(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    map: &[usize],
+    threshold: Option<f64>,
+    zoom: impl Fn(&[usize]) -> Result<Option<Vec<usize>>, Error>,
+) -> Result<Option<Vec<usize>>, Error> {
+    let refined = zoom(map)?;
+    if let (Some(threshold), Some(symmetry), Some(r)) = (threshold, &reference.symmetry, &refined) {
+        if let Some(u) = unflip(&test.mesh, &reference.mesh, r, symmetry, threshold) {
+            return Ok(zoom(&u.map)?.or(Some(u.map)));
+        }
+    }
+    Ok(refined)
+}
+
 /// Steps 5–6: the regularised functional map from the prediction and the sparse matches'
 /// distance maps, and its conversion to point-to-point maps.
 pub fn dense_map(
@@ -834,28 +854,15 @@ pub fn dense_map(
                     refine_zoomout(test, reference, m, z)
                 }
             };
-            let mut refined = zoom(&map)?;
-            // ZoomOut's map is smooth, so its orientation tells mirrored limbs more clearly than
-            // the grown map's: repair them and refine once more.
-            if let (Some(threshold), Some(symmetry), Some(r)) = (params.unflip, &reference.symmetry, &refined)
-            {
-                if let Some(u) = unflip(&test.mesh, &reference.mesh, r, symmetry, threshold) {
-                    refined = zoom(&u.map)?.or(Some(u.map));
-                }
-            }
+            let mut refined = zoomed_and_repaired(test, reference, &map, params.unflip, zoom)?;
             if let (Some(e), Some(r), false) = (&z.extrinsic, &refined, partial) {
                 refined = Some(refine_extrinsic(test, reference, r, e)?);
             }
             if let (Some(sel), Some(fine), false) = (&z.select, &refined, partial) {
                 let zc = ZoomOutParams { k_start: sel.coarse.0, k_final: sel.coarse.1, select: None, ..*z };
-                let mut coarse = refine_zoomout(test, reference, &map, &zc)?;
-                if let (Some(threshold), Some(symmetry), Some(c)) =
-                    (params.unflip, &reference.symmetry, &coarse)
-                {
-                    if let Some(u) = unflip(&test.mesh, &reference.mesh, c, symmetry, threshold) {
-                        coarse = refine_zoomout(test, reference, &u.map, &zc)?.or(Some(u.map));
-                    }
-                }
+                let coarse = zoomed_and_repaired(test, reference, &map, params.unflip, |m| {
+                    refine_zoomout(test, reference, m, &zc)
+                })?;
                 if let Some(c) = coarse {
                     let rounds = unflip_rounds(test.mesh.n_vertices());
                     let maps: [&[usize]; 2] = [fine, &c];

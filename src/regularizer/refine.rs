@@ -195,18 +195,8 @@ pub fn select_by_posterior<S: crate::fmap::SoftCorrespondence + ?Sized>(
         })
         .collect();
     let (offsets, neighbours) = crate::mesh::face_neighbour_lists(&test.faces, n);
-    let smooth = |mut cur: Vec<f64>| {
-        let mut next = vec![0.0; n];
-        for _ in 0..rounds {
-            for v in 0..n {
-                let nb = &neighbours[offsets[v]..offsets[v + 1]];
-                next[v] = (cur[v] + nb.iter().map(|&u| cur[u]).sum::<f64>()) / (1 + nb.len()) as f64;
-            }
-            std::mem::swap(&mut cur, &mut next);
-        }
-        cur
-    };
-    let smoothed: Vec<Vec<f64>> = scores.into_iter().map(smooth).collect();
+    let smoothed: Vec<Vec<f64>> =
+        scores.into_iter().map(|s| super::flip::diffuse(&offsets, &neighbours, s, rounds)).collect();
     (0..n)
         .map(|m| {
             let best = (0..maps.len()).fold(0, |b, i| if smoothed[i][m] > smoothed[b][m] { i } else { b });
