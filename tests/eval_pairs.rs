@@ -12,6 +12,7 @@ use shapeforest::{
         PooledReport,
     },
     forest::RandomForest,
+    regularizer::{PairParams, PairStart},
     spectral::SpectrumParams,
 };
 
@@ -48,8 +49,24 @@ fn pairs_of_unseen_shuffled_shapes_are_mapped_onto_each_other() {
     assert!(pair.within_005 >= 0.8, "pair maps: {:.1} % within 0.05", 100.0 * pair.within_005);
     assert!(composed.within_005 >= 0.7, "composed maps: {:.1} % within 0.05", 100.0 * composed.within_005);
     assert!(pair.mean < 0.05, "pair maps: mean error {:.4}", pair.mean);
+    // The method's pair map: the composed map refined against the target (the default route).
+    let (refined, _) = report.summary(PairMethod::PairZoomOut);
+    assert!(refined.within_005 >= 0.8, "refined pair maps: {:.1} % within 0.05", 100.0 * refined.within_005);
 
-    // Bad plans are refused with the reason.
+    // The other route (the pair's posterior regularised against the target, then refined)
+    // meets the same floor.
+    let regularised = PairsParams {
+        pair: PairParams { start: PairStart::Regularised, ..PairParams::default() },
+        ..params.clone()
+    };
+    let report = run_pairs(&shapes, None, &regularised, None).unwrap();
+    let (refined, _) = report.summary(PairMethod::PairZoomOut);
+    assert!(refined.within_005 >= 0.8, "regularised route: {:.1} % within 0.05", 100.0 * refined.within_005);
+
+    // Bad settings and plans are refused with the reason.
+    let bad = PairsParams { pair: PairParams { radius: -0.1, ..PairParams::default() }, ..params.clone() };
+    let e = run_pairs(&shapes, None, &bad, None).err().unwrap().to_string();
+    assert!(e.contains("pair radius") && e.contains("-0.1"), "{e}");
     let bad = PairsParams { pairs: vec![(4, 4)], ..params.clone() };
     let e = run_pairs(&shapes, None, &bad, None).err().unwrap().to_string();
     assert!(e.contains("with itself"), "{e}");

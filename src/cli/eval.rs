@@ -205,6 +205,23 @@ pub struct EvalArgs {
     /// heat method (closer to the exact geodesics of published tables at short range; slower).
     #[arg(long)]
     pub fast_marching_eval: bool,
+    /// With --pairs / --protocol: do not refine the maps onto the reference whose composition
+    /// starts the pair maps (`PairParams::refine_halves` false; faster, less accurate).
+    #[arg(long)]
+    pub unrefined_halves: bool,
+    /// With --pairs / --protocol: where the pair map's refinement starts: `composed` (the
+    /// composed map, refined against the target) or `regularised` (the pair's posterior
+    /// regularised against the target first, as before 2026-12-03).
+    #[arg(long, value_enum, default_value_t = PairStartArg::Composed)]
+    pub pair_start: PairStartArg,
+    /// With --pairs / --protocol: forest candidates of `A` farther than this (× √area of `B`)
+    /// from the composed map's vertex are dropped from the pair's posterior (`PairParams::radius`).
+    #[arg(long, default_value_t = 0.2, value_name = "R")]
+    pub pair_radius: f64,
+    /// With --pairs / --protocol: weight of the composed map's vertex among a vertex's candidates
+    /// in the pair's posterior (`PairParams::composed_weight`).
+    #[arg(long, default_value_t = 0.5, value_name = "W")]
+    pub pair_composed_weight: f64,
     /// Kernel width (× √area) of the choice between the refined map and a coarse (20 → 100)
     /// ZoomOut's by the forest's posterior (`regularizer::MapSelection`; 0: no choice).
     #[arg(long, default_value_t = 0.02, value_name = "S")]
@@ -1065,6 +1082,24 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
     let json = serde_json::to_string(&PeerPairs { pairs, reference_symmetry })? + "\n";
     write_file(&peer.join("pairs.json"), &json)?;
     Ok(())
+}
+
+/// `--pair-start` (see `regularizer::PairStart`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum PairStartArg {
+    /// The composed map `A → reference → B`.
+    Composed,
+    /// The pair's posterior regularised against `B`.
+    Regularised,
+}
+
+impl From<PairStartArg> for shapeforest::regularizer::PairStart {
+    fn from(a: PairStartArg) -> Self {
+        match a {
+            PairStartArg::Composed => Self::Composed,
+            PairStartArg::Regularised => Self::Regularised,
+        }
+    }
 }
 
 #[cfg(test)]

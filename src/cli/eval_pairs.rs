@@ -139,6 +139,12 @@ pub fn run(
         } else {
             shapeforest::eval::pairs::EvalDistances::Heat
         },
+        pair: shapeforest::regularizer::PairParams {
+            radius: args.pair_radius,
+            composed_weight: args.pair_composed_weight,
+            refine_halves: !args.unrefined_halves,
+            start: args.pair_start.into(),
+        },
         ..PairsParams::default()
     };
     let pb = bar(args.quiet);

@@ -13,7 +13,8 @@
 //! - `REF.colored.ply` and `SCAN.colored.ply`: the reference coloured by a smooth function of
 //!   its coordinates, and the scan coloured through the map (matching parts share colours);
 //! - `SCAN.report.json`: timings, number of sparse matches, orientation score, mean forest
-//!   confidence.
+//!   confidence (with `--to` and the refinement on, those of the scan's map onto the
+//!   reference, whose composition with `B`'s starts the pair map: `quality_of` says which).
 
 use std::{
     fmt::Write as _,
@@ -218,11 +219,23 @@ pub fn run(args: MatchArgs) -> Result<()> {
         None => part.spectrum_mesh(ref_area).0,
         Some(_) => part.mesh.clone(),
     };
+    // One eigensolve per shape: with ZoomOut's larger basis, the descriptors' K eigenpairs are
+    // its leading ones.
+    let solve = |mesh: &Mesh, path: &Path| -> Result<(Spectrum, Option<Spectrum>)> {
+        match &zoomout_params {
+            Some(zp) => {
+                let large = spectrum(mesh, zp, cache.as_ref(), path)?;
+                Ok((large.leading(k), Some(large)))
+            }
+            None => Ok((spectrum(mesh, &sp_params, cache.as_ref(), path)?, None)),
+        }
+    };
     let t0 = Instant::now();
-    let scan_spectrum = spectrum(&spectrum_mesh, &sp_params, cache.as_ref(), &args.mesh)?;
+    let (scan_spectrum, scan_zoomout) = solve(&spectrum_mesh, &args.mesh)?;
     let spectrum_scan_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
-    let ref_spectrum = Arc::new(spectrum(&reference, &sp_params, cache.as_ref(), &args.reference)?);
+    let (ref_spectrum, ref_zoomout) = solve(&reference, &args.reference)?;
+    let ref_spectrum = Arc::new(ref_spectrum);
     let spectrum_ref_s = t0.elapsed().as_secs_f64();
     let (scan_spectrum, scale_ratio) = if args.to.is_none() {
         let (sp, r) = part.spectrum_for_matching(&spectrum_mesh, scan_spectrum, ref_area);
@@ -238,13 +251,11 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let reference = Arc::new(reference);
     let mut test = PreparedShape::new(part.mesh.clone(), scan_spectrum, reg.heat)?;
     let mut refp = PreparedShape::new(reference.clone(), ref_spectrum, reg.heat)?;
-    if let Some(zp) = &zoomout_params {
-        let sp = spectrum(&spectrum_mesh, zp, cache.as_ref(), &args.mesh)?;
+    if let (Some(sp), Some(rp)) = (scan_zoomout, ref_zoomout) {
         let sp =
             if args.to.is_none() { part.spectrum_for_matching(&spectrum_mesh, sp, ref_area).0 } else { sp };
         test = test.with_zoomout_spectrum(Arc::new(sp))?;
-        refp =
-            refp.with_zoomout_spectrum(Arc::new(spectrum(&reference, zp, cache.as_ref(), &args.reference)?))?;
+        refp = refp.with_zoomout_spectrum(Arc::new(rp))?;
     }
     // The reference's left/right symmetry, when the model stores it (trained with `.sym.vts`),
     // lets the regulariser repair mirrored maps.
@@ -256,14 +267,15 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let prepare_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
     // With --to: the target scan's spectrum, prediction and preparation count in this stage.
-    let (dense, target) = match (target, &args.to) {
+    // `dense`: the regularisation the report's quality fields describe; `map`: the map written.
+    let (dense, map, quality_of, target) = match (target, &args.to) {
         (Some(target), Some(target_path)) => {
-            let target_spectrum = Arc::new(spectrum(&target, &sp_params, cache.as_ref(), target_path)?);
+            let (target_spectrum, target_zoomout) = solve(&target, target_path)?;
+            let target_spectrum = Arc::new(target_spectrum);
             let target_prediction = forest.predict(&target_spectrum).context("forest prediction failed")?;
             let target = Arc::new(target);
             let mut targetp = PreparedShape::new(target.clone(), target_spectrum, reg.heat)?;
-            if let Some(zp) = &zoomout_params {
-                let sp = spectrum(&target, zp, cache.as_ref(), target_path)?;
+            if let Some(sp) = target_zoomout {
                 targetp = targetp.with_zoomout_spectrum(Arc::new(sp))?;
             }
             let pair = regularize_pair(
@@ -276,12 +288,20 @@ pub fn run(args: MatchArgs) -> Result<()> {
                 &reg,
                 &PairParams::default(),
             )?;
-            (pair.dense, Some((target, target_path)))
+            match pair.regularised {
+                Some(d) => (d, pair.map, "the pair map", Some((target, target_path))),
+                None => (
+                    pair.a_to_reference,
+                    pair.map,
+                    "the scan's map onto the reference (the pair map is its composition with the target's, refined)",
+                    Some((target, target_path)),
+                ),
+            }
         }
         _ => {
-            let mut dense = regularize(&test, &refp, &prediction, table.as_deref(), &reg)?;
-            dense.map = part.extend(&scan, dense.map);
-            (dense, None)
+            let dense = regularize(&test, &refp, &prediction, table.as_deref(), &reg)?;
+            let map = part.extend(&scan, dense.map.clone());
+            (dense, map, "the map onto the reference", None)
         }
     };
     let regularize_s = t0.elapsed().as_secs_f64();
@@ -298,7 +318,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
         onto_path.display().to_string(),
         args.mesh.display().to_string()
     );
-    for &r in &dense.map {
+    for &r in &map {
         let _ = writeln!(text, "{r}");
     }
     let map_name = match &target {
@@ -308,10 +328,10 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let map_path = args.out.join(map_name);
     std::fs::write(&map_path, text).with_context(|| format!("cannot write {}", map_path.display()))?;
     let onto_colors = coordinate_colors(&onto);
-    let scan_colors: Vec<[u8; 3]> = dense.map.iter().map(|&r| onto_colors[r]).collect();
+    let scan_colors: Vec<[u8; 3]> = map.iter().map(|&r| onto_colors[r]).collect();
     write_colored(&args.out.join(format!("{onto_name}.colored.ply")), &onto, &onto_colors)?;
     write_colored(&args.out.join(format!("{scan_name}.colored.ply")), &scan, &scan_colors)?;
-    super::visual::write_snapshot(&args.out, &scan_name, &scan, &onto, &dense.map)?;
+    super::visual::write_snapshot(&args.out, &scan_name, &scan, &onto, &map)?;
     let write_s = t0.elapsed().as_secs_f64();
 
     let confidence = prediction.mean_confidence();
@@ -334,6 +354,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
         "reference_vertices": reference.n_vertices(),
         "to_vertices": target.as_ref().map(|t| t.0.n_vertices()),
         "n_matches": dense.matches.len(),
+        "quality_of": quality_of,
         // heat-method sources solved and served from the prepared shapes' kept columns
         "heat_columns": {
             "scan": { "solved": test.column_counts().0, "reused": test.column_counts().1 },
@@ -365,7 +386,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
          predict {predict_s:.2} s, regularise {regularize_s:.2} s; wrote {}",
         args.mesh.display(),
         onto_path.display(),
-        dense.map.len(),
+        map.len(),
         dense.matches.len(),
         dense.orientation_score,
         confidence,

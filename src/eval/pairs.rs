@@ -15,8 +15,8 @@
 //! | [`PairMethod`] | map |
 //! |---|---|
 //! | `Pair` | [`crate::regularizer::regularize_pair`]: `A`'s posterior read through `B`'s map onto the reference and regularised against `B`, before its ZoomOut |
-//! | `Composed` | `A → reference` and `B → reference`, each regularised (and refined when the regulariser's ZoomOut is on), composed by inverting the second ([`crate::regularizer::invert_map`]) |
-//! | `PairZoomOut` | `Pair` refined by ZoomOut ([`crate::regularizer::refine_zoomout`]; the regulariser's own refinement when it is on, the default) |
+//! | `Composed` | `A → reference` and `B → reference`, each regularised (and refined when the regulariser's ZoomOut is on and [`crate::regularizer::PairParams::refine_halves`]), composed by inverting the second ([`crate::regularizer::invert_map`]) |
+//! | `PairZoomOut` | the pair map, refined: with the regulariser's refinement on (the default), `Composed` refined against `B` ([`crate::regularizer::PairStart::Composed`], the default) or `Pair` refined ([`crate::regularizer::PairStart::Regularised`]); with it off, `Pair` refined by ZoomOut ([`crate::regularizer::refine_zoomout`]) |
 //!
 //! Each shape's map onto the reference is computed once, whatever the number of pairs it is in.
 //! Distances on `B` come from the heat method (`t = h²`), in blocks of sources, so memory stays
@@ -46,7 +46,7 @@ pub enum PairMethod {
     Pair,
     /// Two maps onto the reference, composed.
     Composed,
-    /// `Pair` refined by ZoomOut from its point map (eigenpairs `zoomout_start` … K).
+    /// The pair map, refined (see the module docs: from `Composed` by default).
     PairZoomOut,
 }
 
@@ -148,7 +148,9 @@ pub struct PairResult {
     pub b: usize,
     /// Errors per method, in [`PairMethod::ALL`] order.
     pub methods: Vec<PairErrors>,
-    /// Seconds spent regularising `A` against `B` (the step specific to the pair).
+    /// Seconds of the step specific to the pair (the pair map from the two maps onto the
+    /// reference; the `Pair` row's own regularisation is not counted when the map did not
+    /// need it).
     pub pair_s: f64,
 }
 
@@ -234,6 +236,7 @@ fn check(
     params: &PairsParams,
 ) -> Result<usize, EvalError> {
     let n_labels = super::protocol::check_shapes(shapes, symmetry)?;
+    params.pair.check().map_err(|e| invalid(e.to_string()))?;
     if params.training.is_empty() {
         return Err(invalid("the pairwise protocol needs at least one training shape".into()));
     }
@@ -356,10 +359,11 @@ pub fn run_pairs(
     };
     let ref_prepared = prepare(reference)?;
     let mut prepared: HashMap<usize, (PreparedShape, crate::forest::Prediction, DenseMap)> = HashMap::new();
+    let halves = params.pair.halves(&params.regularizer);
     for (i, &s) in tested.iter().enumerate() {
         let p = prepare(s)?;
         let prediction = forest.predict(&p.spectrum)?;
-        let dense = regularize(&p, &ref_prepared, &prediction, Some(table), &params.regularizer)?;
+        let dense = regularize(&p, &ref_prepared, &prediction, Some(table), &halves)?;
         prepared.insert(s, (p, prediction, dense));
         emit(PairsEvent::ToReference { done: i + 1, total: tested.len(), name: &shapes[s].name });
     }
@@ -373,7 +377,7 @@ pub fn run_pairs(
         let (pa, pred_a, a_to_ref) = &prepared[&a];
         let (pb, _, b_to_ref) = &prepared[&b];
         let t0 = Instant::now();
-        let (mut pair, composed) = regularize_onto(
+        let step = regularize_onto(
             pa,
             pb,
             &ref_prepared.mesh,
@@ -386,15 +390,25 @@ pub fn run_pairs(
         )?;
         let pair_s = t0.elapsed().as_secs_f64();
         timings.pairs_s += pair_s;
-        // With the regulariser's ZoomOut on, the pair map is already refined (or was kept).
-        let zoomed = match (pair.grown_map.take(), &params.regularizer.zoomout) {
-            (Some(grown), _) => std::mem::replace(&mut pair.map, grown),
-            (None, Some(_)) => pair.map.clone(),
-            (None, None) => {
-                refine_zoomout(pa, pb, &pair.map, &params.zoomout)?.unwrap_or_else(|| pair.map.clone())
+        // The `pair+reg` row (the pair's posterior regularised against B, unrefined) and the
+        // `pair+zoomout` row (the pair map, refined).
+        let (pair_map, zoomed) = match (step.regularised, &params.regularizer.zoomout) {
+            // Refined by the regulariser (or kept by its check: no grown map then).
+            (Some(d), Some(_)) => (d.grown_map.unwrap_or_else(|| d.map.clone()), d.map),
+            (Some(d), None) => {
+                let zoomed =
+                    refine_zoomout(pa, pb, &d.map, &params.zoomout)?.unwrap_or_else(|| d.map.clone());
+                (d.map, zoomed)
+            }
+            // Refined from the composed map: the regularised pair map is measured beside it (not
+            // part of the method, not timed).
+            (None, _) => {
+                let unrefined = RegularizerParams { zoomout: None, ..params.regularizer.clone() };
+                (regularize(pa, pb, &step.posterior, None, &unrefined)?.map, step.map)
             }
         };
-        maps.push((pair.map, composed, zoomed, pair_s));
+        let composed = step.composed;
+        maps.push((pair_map, composed, zoomed, pair_s));
         emit(PairsEvent::PairDone {
             done: done + 1,
             total: params.pairs.len(),

@@ -44,7 +44,9 @@ pub use flip::{
 use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
 
-pub use pair::{invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams};
+pub use pair::{
+    invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams, PairStart, PairStep,
+};
 pub use partial::{
     boundary_distances, pair_trust, partial_area_ratio, refine_zoomout_partial, PartialScanParams,
     PARTIAL_AREA_RATIO,
@@ -845,37 +847,7 @@ pub fn dense_map(
     let (map, grown_map) = match &params.zoomout {
         Some(z) => {
             let t0 = Instant::now();
-            // An open part of the reference gets the partial (rectangular) ZoomOut.
-            let partial = params.partial_zoomout && partial_area_ratio(test, reference).is_some();
-            let zoom = |m: &[usize]| {
-                if partial {
-                    refine_zoomout_partial(test, reference, m, z)
-                } else {
-                    refine_zoomout(test, reference, m, z)
-                }
-            };
-            let mut refined = zoomed_and_repaired(test, reference, &map, params.unflip, zoom)?;
-            if let (Some(e), Some(r), false) = (&z.extrinsic, &refined, partial) {
-                refined = Some(refine_extrinsic(test, reference, r, e)?);
-            }
-            if let (Some(sel), Some(fine), false) = (&z.select, &refined, partial) {
-                let zc = ZoomOutParams { k_start: sel.coarse.0, k_final: sel.coarse.1, select: None, ..*z };
-                let coarse = zoomed_and_repaired(test, reference, &map, params.unflip, |m| {
-                    refine_zoomout(test, reference, m, &zc)
-                })?;
-                if let Some(c) = coarse {
-                    let rounds = unflip_rounds(test.mesh.n_vertices());
-                    let maps: [&[usize]; 2] = [fine, &c];
-                    refined = Some(select_by_posterior(
-                        &test.mesh,
-                        &reference.mesh,
-                        &posterior,
-                        &maps,
-                        sel.sigma,
-                        rounds,
-                    ));
-                }
-            }
+            let refined = refine_with(test, reference, &posterior, &map, z, params)?;
             timings.zoomout_s = t0.elapsed().as_secs_f64();
             match refined {
                 Some(r) => (r, Some(map)),
@@ -903,4 +875,68 @@ pub fn dense_map(
         mirror_rejected: sparse.mirror_rejected,
         timings,
     })
+}
+
+/// Step 8, the refinement of `map` (test vertex → reference vertex) by `zoomout`: ZoomOut with
+/// its repair of mirrored parts (the partial ZoomOut for an open part of the reference), then
+/// the extrinsic step and the choice against a coarse ZoomOut by the forest's posterior
+/// (`prediction` read through `label_to_vertex`) as [`ZoomOutParams`] says. `None` when the
+/// ZoomOut's check kept `map`. This is what [`regularize`] does after anchor growth when
+/// [`RegularizerParams::zoomout`] is on; any other map of the shapes (e.g. one composed through
+/// a third shape) can be refined the same way.
+pub fn refine_map(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    prediction: &Prediction,
+    label_to_vertex: Option<&[usize]>,
+    map: &[usize],
+    zoomout: &ZoomOutParams,
+    params: &RegularizerParams,
+) -> Result<Option<Vec<usize>>, Error> {
+    check_inputs(test, reference, prediction, label_to_vertex, params)?;
+    let n_ref = reference.mesh.n_vertices();
+    if map.len() != test.mesh.n_vertices() || map.iter().any(|&r| r >= n_ref) {
+        return Err(Error::SizeMismatch(format!(
+            "a map of {} entries for a test shape of {} vertices onto {n_ref}",
+            map.len(),
+            test.mesh.n_vertices()
+        )));
+    }
+    refine_with(test, reference, &LabelledPosterior { prediction, label_to_vertex }, map, zoomout, params)
+}
+
+fn refine_with(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    posterior: &LabelledPosterior<'_>,
+    map: &[usize],
+    z: &ZoomOutParams,
+    params: &RegularizerParams,
+) -> Result<Option<Vec<usize>>, Error> {
+    // An open part of the reference gets the partial (rectangular) ZoomOut.
+    let partial = params.partial_zoomout && partial_area_ratio(test, reference).is_some();
+    let zoom = |m: &[usize]| {
+        if partial {
+            refine_zoomout_partial(test, reference, m, z)
+        } else {
+            refine_zoomout(test, reference, m, z)
+        }
+    };
+    let mut refined = zoomed_and_repaired(test, reference, map, params.unflip, zoom)?;
+    if let (Some(e), Some(r), false) = (&z.extrinsic, &refined, partial) {
+        refined = Some(refine_extrinsic(test, reference, r, e)?);
+    }
+    if let (Some(sel), Some(fine), false) = (&z.select, &refined, partial) {
+        let zc = ZoomOutParams { k_start: sel.coarse.0, k_final: sel.coarse.1, select: None, ..*z };
+        let coarse = zoomed_and_repaired(test, reference, map, params.unflip, |m| {
+            refine_zoomout(test, reference, m, &zc)
+        })?;
+        if let Some(c) = coarse {
+            let rounds = unflip_rounds(test.mesh.n_vertices());
+            let maps: [&[usize]; 2] = [fine, &c];
+            refined =
+                Some(select_by_posterior(&test.mesh, &reference.mesh, posterior, &maps, sel.sigma, rounds));
+        }
+    }
+    Ok(refined)
 }

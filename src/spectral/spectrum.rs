@@ -54,6 +54,28 @@ impl Spectrum {
         }
     }
 
+    /// The first `k` eigenpairs (all of them when there are fewer): the spectrum of a smaller
+    /// solve read off a larger one, so that a shape needing both (descriptors and ZoomOut) is
+    /// solved once.
+    ///
+    /// ```
+    /// use shapeforest::spectral::Spectrum;
+    /// let s = Spectrum { eigenvalues: vec![0.0, 1.0, 2.0], eigenvectors: (0..6).map(f64::from).collect(),
+    ///     n_vertices: 2, mass: vec![0.5, 0.5], area: 1.0 };
+    /// let t = s.leading(2);
+    /// assert_eq!((t.eigenvalues.as_slice(), t.eigenvectors.as_slice()), (&[0.0, 1.0][..], &[0.0, 1.0, 2.0, 3.0][..]));
+    /// ```
+    pub fn leading(&self, k: usize) -> Spectrum {
+        let k = k.min(self.k());
+        Spectrum {
+            eigenvalues: self.eigenvalues[..k].to_vec(),
+            eigenvectors: self.eigenvectors[..k * self.n_vertices].to_vec(),
+            n_vertices: self.n_vertices,
+            mass: self.mass.clone(),
+            area: self.area,
+        }
+    }
+
     /// The eigenpairs restricted to the first `n` vertices (rows): the spectrum of a mesh with
     /// vertices appended (holes closed, see [`crate::mesh::fill_holes`]) read on the original
     /// vertices. The eigenvalues and the area are unchanged.
