@@ -8,7 +8,8 @@ use shapeforest::{
     eval::{geodesic_errors, ErrorSummary},
     geodesic::HeatParams,
     regularizer::{
-        refine_extrinsic, refine_zoomout, select_by_posterior, ExtrinsicParams, PreparedShape, ZoomOutParams,
+        refine_extrinsic, refine_zoomout, sample_cells, select_by_posterior, ExtrinsicParams, PreparedShape,
+        ZoomOutParams,
     },
     spectral::{compute_spectrum, SpectrumParams},
     synth::{creature_family, CreatureParams},
@@ -130,4 +131,14 @@ fn the_map_the_posterior_supports_is_chosen_region_by_region() {
         let right = chosen.iter().enumerate().filter(|&(v, &r)| v == r).count();
         assert!(right * 100 >= p.n * 98, "{right} of {} vertices chose the supported map", p.n);
     }
+}
+
+#[test]
+fn a_shapes_sample_cells_are_made_once_per_count_and_are_the_plain_ones() {
+    let p = pair();
+    let first = p.test.sample_cells(500).unwrap();
+    assert!(Arc::ptr_eq(&first, &p.test.sample_cells(500).unwrap()), "made once, then reused");
+    assert_eq!(*first, sample_cells(&p.test.mesh, 500).unwrap());
+    assert_eq!(p.test.sample_cells(300).unwrap().samples.len(), 300);
+    assert!(Arc::ptr_eq(&first, &p.test.sample_cells(500).unwrap()), "another count does not evict");
 }

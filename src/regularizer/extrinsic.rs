@@ -24,7 +24,7 @@
 use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par};
 use serde::{Deserialize, Serialize};
 
-use super::{refine::sample_cells, PreparedShape, RegularizerError as Error};
+use super::{PreparedShape, RegularizerError as Error};
 use crate::{
     fmap::{basis, nearest_in_cells, nearest_rows, pullback_fmap},
     mesh::Mesh,
@@ -117,8 +117,7 @@ pub fn refine_extrinsic(
     let phi_r = basis(rb, k);
     let edge = mean_edge_step(&test.mesh, x_t.as_ref());
     let scale = if edge > 0.0 { params.weight * mean_edge_step(&test.mesh, phi_t) / edge } else { 0.0 };
-    let cells =
-        if n_r > params.samples { Some(sample_cells(&reference.mesh, params.samples)?) } else { None };
+    let cells = if n_r > params.samples { Some(reference.sample_cells(params.samples)?) } else { None };
     // The deformation basis, weighted by the test shape's mass for the projections.
     let phi_d = basis(tb, kd);
     let weighted_d = Mat::from_fn(n_t, kd, |v, j| tb.mass[v] * phi_d[(v, j)]);

@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{sample_cells, PreparedShape, RegularizerError as Error, ZoomOutParams};
+use super::{PreparedShape, RegularizerError as Error, ZoomOutParams};
 use crate::{
     fmap::{point_to_point_partial, zoomout_partial_on_samples, ZoomOutSchedule},
     geodesic::dijkstra_distances,
@@ -104,8 +104,8 @@ pub fn refine_zoomout_partial(
     let (k_start, k_final) = params.partial;
     let k_final = k_final.min(reference_basis.k());
     let schedule = ZoomOutSchedule { k_start: k_start.min(k_final), k_final, step: params.step };
-    let test_cells = sample_cells(&test.mesh, params.samples)?;
-    let reference_cells = sample_cells(&reference.mesh, params.samples)?;
+    let test_cells = test.sample_cells(params.samples)?;
+    let reference_cells = reference.sample_cells(params.samples)?;
     let c = zoomout_partial_on_samples(
         test_basis,
         &test_cells,

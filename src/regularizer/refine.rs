@@ -124,8 +124,8 @@ pub fn refine_zoomout(
     let (test_basis, reference_basis) = (test.zoomout_basis(), reference.zoomout_basis());
     let (k_start, k_final) = params.schedule(test_basis.k().min(reference_basis.k()));
     let schedule = ZoomOutSchedule { k_start, k_final, step: params.step };
-    let test_cells = sample_cells(&test.mesh, params.samples)?;
-    let reference_cells = sample_cells(&reference.mesh, params.samples)?;
+    let test_cells = test.sample_cells(params.samples)?;
+    let reference_cells = reference.sample_cells(params.samples)?;
     let balls = params
         .radius
         .map(|r| cell_balls(&reference.mesh, &reference_cells, r * reference.mesh.surface_area().sqrt()));
