@@ -102,13 +102,8 @@ pub fn refine_extrinsic(
 ) -> Result<Vec<usize>, Error> {
     params.check().map_err(|reason| Error::InvalidParameter { name: "extrinsic", reason })?;
     let (tb, rb) = (test.zoomout_basis(), reference.zoomout_basis());
+    super::check_map_onto(test, reference, map)?;
     let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
-    if map.len() != n_t || map.iter().any(|&r| r >= n_r) {
-        return Err(Error::SizeMismatch(format!(
-            "a map of {} entries for a test shape of {n_t} vertices onto {n_r}",
-            map.len()
-        )));
-    }
     let k = tb.k().min(rb.k());
     let kd = params.deformation_k.min(tb.k());
     let x_t = unit_coordinates(&test.mesh);

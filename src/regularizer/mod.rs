@@ -918,15 +918,24 @@ pub fn refine_map(
     params: &RegularizerParams,
 ) -> Result<Option<Vec<usize>>, Error> {
     check_inputs(test, reference, prediction, label_to_vertex, params)?;
-    let n_ref = reference.mesh.n_vertices();
-    if map.len() != test.mesh.n_vertices() || map.iter().any(|&r| r >= n_ref) {
+    check_map_onto(test, reference, map)?;
+    refine_with(test, reference, &LabelledPosterior { prediction, label_to_vertex }, map, zoomout, params)
+}
+
+/// Checks that `map` has one entry per test vertex, each a reference vertex.
+pub(super) fn check_map_onto(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    map: &[usize],
+) -> Result<(), Error> {
+    let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
+    if map.len() != n_t || map.iter().any(|&r| r >= n_r) {
         return Err(Error::SizeMismatch(format!(
-            "a map of {} entries for a test shape of {} vertices onto {n_ref}",
-            map.len(),
-            test.mesh.n_vertices()
+            "a map of {} entries for a test shape of {n_t} vertices onto {n_r}",
+            map.len()
         )));
     }
-    refine_with(test, reference, &LabelledPosterior { prediction, label_to_vertex }, map, zoomout, params)
+    Ok(())
 }
 
 fn refine_with(
