@@ -21,7 +21,7 @@
 use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par};
 
 use super::{
-    basis, check_basis, nearest_rows,
+    basis, check_basis, nearest_rows_single,
     sampled::{basis_rows, check_map, check_sizes, SampledFit},
     FmapError, SampleCells, ZoomOutSchedule,
 };
@@ -79,7 +79,7 @@ pub fn zoomout_partial_on_samples(
         // Part samples onto reference samples: rows of Φ_M[:, :k_M] against Φ_R[:, :k_R] Cᵀ.
         let mut points = Mat::<f64>::zeros(phi_r.nrows(), km);
         matmul(points.as_mut(), Accum::Replace, phi_r.subcols(0, k), c.transpose(), 1.0, Par::rayon(0));
-        let t = nearest_rows(phi_t.subcols(0, km), points.as_ref());
+        let t = nearest_rows_single(phi_t.subcols(0, km), points.as_ref());
         let last = k == kf;
         k = (k + schedule.step).min(kf);
         km = partial_basis_size(test, reference, k);
@@ -115,6 +115,6 @@ pub fn point_to_point_partial(
     let queries = basis(test, km);
     let sample_points =
         Mat::from_fn(reference_cells.samples.len(), km, |i, j| points[(reference_cells.samples[i], j)]);
-    let coarse = nearest_rows(queries, sample_points.as_ref());
+    let coarse = nearest_rows_single(queries, sample_points.as_ref());
     Ok(super::sampled::nearest_in_cells(queries, points.as_ref(), reference_cells, &coarse))
 }

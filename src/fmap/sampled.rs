@@ -11,7 +11,7 @@
 use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par, Side};
 use rayon::prelude::*;
 
-use super::{basis, check_basis, nearest_rows, FmapError};
+use super::{basis, check_basis, nearest_rows_single, FmapError};
 use crate::spectral::Spectrum;
 
 /// Samples of a shape and the cells they split it into: every vertex belongs to the cell of its
@@ -293,7 +293,7 @@ pub fn zoomout_on_samples(
         let mut points = Mat::<f64>::zeros(phi_r.nrows(), k);
         matmul(points.as_mut(), Accum::Replace, phi_r.subcols(0, k), c.transpose(), 1.0, Par::rayon(0));
         let t = match balls {
-            None => nearest_rows(phi_t.subcols(0, k), points.as_ref()),
+            None => nearest_rows_single(phi_t.subcols(0, k), points.as_ref()),
             Some(b) => nearest_among(phi_t.subcols(0, k), points.as_ref(), |i| {
                 b.of(reference_cells.cell_of[first[i]] as usize)
             }),
@@ -338,7 +338,7 @@ pub fn point_to_point_in_cells(
     let sample_points =
         Mat::from_fn(reference_cells.samples.len(), k, |i, j| points[(reference_cells.samples[i], j)]);
     let coarse = match restrict {
-        None => nearest_rows(queries, sample_points.as_ref()),
+        None => nearest_rows_single(queries, sample_points.as_ref()),
         Some((balls, map)) => {
             if map.len() != test.n_vertices {
                 return Err(FmapError::SizeMismatch(format!(

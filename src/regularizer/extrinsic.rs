@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{PreparedShape, RegularizerError as Error};
 use crate::{
-    fmap::{basis, nearest_in_cells, nearest_rows, pullback_fmap},
+    fmap::{basis, nearest_in_cells, nearest_rows, nearest_rows_single, pullback_fmap},
     mesh::Mesh,
 };
 
@@ -147,7 +147,7 @@ pub fn refine_extrinsic(
             Some(cells) => {
                 let sample_points =
                     Mat::from_fn(cells.samples.len(), k + 3, |i, j| points[(cells.samples[i], j)]);
-                let coarse = nearest_rows(queries.as_ref(), sample_points.as_ref());
+                let coarse = nearest_rows_single(queries.as_ref(), sample_points.as_ref());
                 nearest_in_cells(queries.as_ref(), points.as_ref(), cells, &coarse)
             }
         };
