@@ -298,6 +298,40 @@ pub fn solve_rows_with_diagonal(
     Ok(c)
 }
 
+/// A matrix copied row by row into one contiguous buffer, for searches that read whole rows at
+/// random (a column-major matrix puts a row's entries one column length apart).
+pub(crate) struct RowMajor {
+    data: Vec<f64>,
+    ncols: usize,
+}
+
+impl RowMajor {
+    pub(crate) fn new(m: MatRef<'_, f64>) -> Self {
+        let ncols = m.ncols();
+        let mut data = vec![0.0; m.nrows() * ncols];
+        for j in 0..ncols {
+            for (i, &x) in m.col(j).iter().enumerate() {
+                data[i * ncols + j] = x;
+            }
+        }
+        Self { data, ncols }
+    }
+
+    pub(crate) fn nrows(&self) -> usize {
+        self.data.len().checked_div(self.ncols).unwrap_or(0)
+    }
+
+    pub(crate) fn row(&self, i: usize) -> &[f64] {
+        &self.data[i * self.ncols..(i + 1) * self.ncols]
+    }
+}
+
+/// `Σ_j (a_j − b_j)²`, summed in order of `j`.
+#[inline]
+pub(crate) fn squared_distance(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum()
+}
+
 /// For each row of `queries` (`q × d`), the index of the nearest row of `points` (`p × d`) in
 /// Euclidean distance. Blocked brute force on matrix products, parallel over query blocks.
 ///
@@ -567,12 +601,14 @@ pub fn point_to_point_restricted<S: SoftCorrespondence + ?Sized>(
     let kr = c.ncols();
     let emb = pulled_back_embedding(test, reference, c)?;
     let phi_r = basis(reference, kr);
+    let (emb_rows, phi_rows) = (RowMajor::new(emb.as_ref()), RowMajor::new(phi_r));
     let mut out: Vec<Option<usize>> = vec![None; test.n_vertices];
     out.par_iter_mut().enumerate().for_each(|(m, slot)| {
         let mut best = f64::INFINITY;
+        let q = emb_rows.row(m);
         soft.for_each_entry(m, &mut |r, _| {
             if r < reference.n_vertices {
-                let d: f64 = (0..kr).map(|j| (emb[(m, j)] - phi_r[(r, j)]).powi(2)).sum();
+                let d = squared_distance(q, phi_rows.row(r));
                 if d < best {
                     best = d;
                     *slot = Some(r);

@@ -11,7 +11,7 @@
 use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par, Side};
 use rayon::prelude::*;
 
-use super::{basis, check_basis, nearest_rows_single, FmapError};
+use super::{basis, check_basis, nearest_rows_single, squared_distance, FmapError, RowMajor};
 use crate::spectral::Spectrum;
 
 /// Samples of a shape and the cells they split it into: every vertex belongs to the cell of its
@@ -365,14 +365,17 @@ pub fn nearest_in_cells(
     reference_cells: &SampleCells,
     coarse: &[usize],
 ) -> Vec<usize> {
-    let k = queries.ncols();
+    // Row-major copies: each distance reads two contiguous rows instead of one entry per
+    // column of a column-major matrix (a cache miss each on large meshes).
+    let (queries, points) = (RowMajor::new(queries), RowMajor::new(points));
     let mut out = vec![0usize; queries.nrows()];
     out.par_iter_mut().enumerate().for_each(|(m, slot)| {
         let mut best = f64::INFINITY;
+        let q = queries.row(m);
         for &cell in reference_cells.neighbours_of(coarse[m]) {
             for &r in reference_cells.members_of(cell as usize) {
                 let r = r as usize;
-                let d: f64 = (0..k).map(|j| (queries[(m, j)] - points[(r, j)]).powi(2)).sum();
+                let d = squared_distance(q, points.row(r));
                 if d < best {
                     best = d;
                     *slot = r;
@@ -413,13 +416,14 @@ fn nearest_among<'a>(
     points: MatRef<'_, f64>,
     candidates: impl Fn(usize) -> &'a [u32] + Sync,
 ) -> Vec<usize> {
-    let k = queries.ncols();
+    let (queries, points) = (RowMajor::new(queries), RowMajor::new(points));
     let mut out = vec![0usize; queries.nrows()];
     out.par_iter_mut().enumerate().for_each(|(i, slot)| {
         let mut best = f64::INFINITY;
+        let q = queries.row(i);
         for &p in candidates(i) {
             let p = p as usize;
-            let d: f64 = (0..k).map(|j| (queries[(i, j)] - points[(p, j)]).powi(2)).sum();
+            let d = squared_distance(q, points.row(p));
             if d < best {
                 best = d;
                 *slot = p;
