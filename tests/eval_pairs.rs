@@ -42,6 +42,13 @@ fn pairs_of_unseen_shuffled_shapes_are_mapped_onto_each_other() {
         for m in &p.methods {
             assert_eq!(m.strict.len(), shapes[0].truth.len(), "every corresponded point is scored");
             assert!(m.symmetric.is_none());
+            // Each point's image is reported: a point mapped onto its true vertex has no error,
+            // and one mapped elsewhere has some.
+            assert_eq!(m.images.len(), m.strict.len(), "every corresponded point's image is reported");
+            for (k, (&image, &e)) in m.images.iter().zip(&m.strict).enumerate() {
+                let truth = shapes[p.b].truth[k];
+                assert_eq!(image == truth, e == 0.0, "point {k}: image {image}, truth {truth}, error {e}");
+            }
         }
     }
     let (pair, _) = report.summary(PairMethod::Pair);

@@ -258,7 +258,7 @@ fn write_outputs(
     write_file(&out.join("pairs.csv"), &csv)?;
     if args.point_errors {
         // Every corresponded point of every pair: errors per method, strict and flips allowed.
-        let mut pts = String::from("a,b,k,method,strict,sym\n");
+        let mut pts = String::from("a,b,k,method,strict,sym,image,truth\n");
         for p in &report.pairs {
             for m in &p.methods {
                 for (k, &e) in m.strict.iter().enumerate() {
@@ -269,10 +269,12 @@ fn write_outputs(
                         .map_or(String::new(), |y| format!("{y:.6}"));
                     let _ = writeln!(
                         pts,
-                        "{},{},{k},{},{e:.6},{sym}",
+                        "{},{},{k},{},{e:.6},{sym},{},{}",
                         shapes[p.a].name,
                         shapes[p.b].name,
-                        m.method.name()
+                        m.method.name(),
+                        m.images.get(k).map_or(String::new(), |v| v.to_string()),
+                        shapes[p.b].truth.get(k).map_or(String::new(), |v| v.to_string())
                     );
                 }
             }

@@ -137,6 +137,11 @@ pub struct PairErrors {
     pub strict: Vec<f64>,
     /// Flips-allowed errors, when a symmetry map was given.
     pub symmetric: Option<Vec<f64>>,
+    /// The vertex of `B` each corresponded point was mapped to (the true one is
+    /// [`ProtocolShape::truth`](super::ProtocolShape::truth)`[k]` of `B`), for measuring the
+    /// errors with other distances.
+    #[serde(default)]
+    pub images: Vec<usize>,
 }
 
 /// The result of one pair.
@@ -348,7 +353,7 @@ pub fn run_pairs(
         .flatten()
         .max()
         .unwrap_or(0);
-    let zoomout_params = SpectrumParams { k: zoomout_k, ..params.spectrum.clone() };
+    let zoomout_params = params.spectrum.with_k(zoomout_k);
     let prepare = |s: usize| -> Result<PreparedShape, EvalError> {
         let p = PreparedShape::new(shapes[s].mesh.clone(), spectra[&s].clone(), heat)?;
         if zoomout_k <= params.spectrum.k {
@@ -461,20 +466,36 @@ pub fn run_pairs(
     }
     timings.eval_s = t0.elapsed().as_secs_f64();
 
+    let images = |a: usize, map: &[usize]| shapes[a].truth.iter().map(|&v| map[v]).collect::<Vec<usize>>();
     let pairs = params
         .pairs
         .iter()
         .zip(errors)
         .zip(&maps)
-        .map(|((&(a, b), [ps, py, cs, cy, zs, zy]), (_, _, _, pair_s))| PairResult {
+        .map(|((&(a, b), [ps, py, cs, cy, zs, zy]), maps_i)| PairResult {
             a,
             b,
             methods: vec![
-                PairErrors { method: PairMethod::Pair, strict: ps, symmetric: symmetry.map(|_| py) },
-                PairErrors { method: PairMethod::Composed, strict: cs, symmetric: symmetry.map(|_| cy) },
-                PairErrors { method: PairMethod::PairZoomOut, strict: zs, symmetric: symmetry.map(|_| zy) },
+                PairErrors {
+                    method: PairMethod::Pair,
+                    strict: ps,
+                    symmetric: symmetry.map(|_| py),
+                    images: images(a, &maps_i.0),
+                },
+                PairErrors {
+                    method: PairMethod::Composed,
+                    strict: cs,
+                    symmetric: symmetry.map(|_| cy),
+                    images: images(a, &maps_i.1),
+                },
+                PairErrors {
+                    method: PairMethod::PairZoomOut,
+                    strict: zs,
+                    symmetric: symmetry.map(|_| zy),
+                    images: images(a, &maps_i.2),
+                },
             ],
-            pair_s: *pair_s,
+            pair_s: maps_i.3,
         })
         .collect();
     Ok(PairsReport {

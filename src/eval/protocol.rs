@@ -517,7 +517,7 @@ pub fn run_protocol(
         .regularizer
         .zoomout
         .filter(|z| z.k_final > params.spectrum.k)
-        .map(|z| SpectrumParams { k: z.k_final, ..params.spectrum.clone() });
+        .map(|z| params.spectrum.with_k(z.k_final));
     let mut tests = Vec::with_capacity(jobs.len());
     for (done, (t, train)) in jobs.iter().enumerate() {
         let test_shape = &shapes[*t];

@@ -127,6 +127,22 @@ impl SpectrumParams {
         }
     }
 
+    /// The same settings for `k` eigenpairs (a larger ZoomOut basis computed with the
+    /// descriptors' settings); where `max_basis` is too small for `k` (below `k + 2·block_size`),
+    /// it becomes [`SpectrumParams::new`]'s for `k`.
+    ///
+    /// ```
+    /// use shapeforest::spectral::SpectrumParams;
+    /// let p = SpectrumParams { tol: 1e-9, ..SpectrumParams::new(100) }.with_k(300);
+    /// assert_eq!((p.k, p.tol), (300, 1e-9));
+    /// assert!(p.check().is_ok());
+    /// ```
+    pub fn with_k(&self, k: usize) -> Self {
+        let fits = self.max_basis >= k + 2 * self.block_size;
+        let max_basis = if fits { self.max_basis } else { self.max_basis.max(Self::new(k).max_basis) };
+        Self { k, max_basis, ..self.clone() }
+    }
+
     /// Checks every field, naming the first offending one.
     pub fn check(&self) -> Result<(), SpectralError> {
         let invalid =
