@@ -160,7 +160,7 @@ pub fn wave_kernel_signature(
         v * v
     });
     let mut out = Mat::<f64>::zeros(n, energies.len());
-    faer::linalg::matmul::matmul(
+    crate::spectral::matmul_tall(
         out.as_mut(),
         faer::Accum::Replace,
         phi_sq.as_ref(),

@@ -497,7 +497,7 @@ impl SymmetrySolver {
         loop {
             let phi_k = self.phi_samples.subcols(0, k);
             let mut emb = Mat::<f64>::zeros(ns, k);
-            matmul(emb.as_mut(), Accum::Replace, phi_k, c.as_ref(), 1.0, Par::rayon(0));
+            crate::spectral::matmul_tall(emb.as_mut(), Accum::Replace, phi_k, c.as_ref(), 1.0, Par::rayon(0));
             let t = nearest_rows(emb.as_ref(), phi_k);
             if k == kf && c.nrows() == kf {
                 // One more least-squares pass at the final size from the final point map.
@@ -539,7 +539,7 @@ impl SymmetrySolver {
         let phi = self.spectrum.vectors().subcols(0, k);
         let rows = Mat::from_fn(vertices.len(), k, |i, j| phi[(vertices[i], j)]);
         let mut emb = Mat::<f64>::zeros(vertices.len(), k);
-        matmul(emb.as_mut(), Accum::Replace, rows.as_ref(), c, 1.0, Par::rayon(0));
+        crate::spectral::matmul_tall(emb.as_mut(), Accum::Replace, rows.as_ref(), c, 1.0, Par::rayon(0));
         Ok(nearest_rows(emb.as_ref(), phi))
     }
 

@@ -550,7 +550,7 @@ pub fn point_to_point_rows(
     let phi = basis(test, kt);
     let sub = Mat::from_fn(rows.len(), kt, |i, j| phi[(rows[i], j)]);
     let mut emb = Mat::zeros(rows.len(), kr);
-    matmul(emb.as_mut(), Accum::Replace, sub.as_ref(), c, 1.0, Par::Seq);
+    crate::spectral::matmul_tall(emb.as_mut(), Accum::Replace, sub.as_ref(), c, 1.0, Par::Seq);
     Ok(nearest_rows(emb.as_ref(), basis(reference, kr)))
 }
 
@@ -565,7 +565,7 @@ fn pulled_back_embedding(
     check_basis("test", test, kt)?;
     check_basis("reference", reference, kr)?;
     let mut emb = Mat::zeros(test.n_vertices, kr);
-    matmul(emb.as_mut(), Accum::Replace, basis(test, kt), c, 1.0, Par::rayon(0));
+    crate::spectral::matmul_tall(emb.as_mut(), Accum::Replace, basis(test, kt), c, 1.0, Par::rayon(0));
     Ok(emb)
 }
 
@@ -670,7 +670,14 @@ pub fn point_to_point_orthogonal(
     check_basis("test", test, kt)?;
     check_basis("reference", reference, kr)?;
     let mut points = Mat::zeros(reference.n_vertices, kt);
-    matmul(points.as_mut(), Accum::Replace, basis(reference, kr), c.transpose(), 1.0, Par::rayon(0));
+    crate::spectral::matmul_tall(
+        points.as_mut(),
+        Accum::Replace,
+        basis(reference, kr),
+        c.transpose(),
+        1.0,
+        Par::rayon(0),
+    );
     Ok(nearest_rows(basis(test, kt), points.as_ref()))
 }
 

@@ -18,7 +18,7 @@
 //! vertex looks for its nearest reference row; reference points outside the part's image are
 //! simply never chosen). With `k_M = k_R` at every step this is the square ZoomOut.
 
-use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par};
+use faer::{Accum, Mat, MatRef, Par};
 
 use super::{
     basis, check_basis, nearest_rows_single,
@@ -78,7 +78,14 @@ pub fn zoomout_partial_on_samples(
     loop {
         // Part samples onto reference samples: rows of Φ_M[:, :k_M] against Φ_R[:, :k_R] Cᵀ.
         let mut points = Mat::<f64>::zeros(phi_r.nrows(), km);
-        matmul(points.as_mut(), Accum::Replace, phi_r.subcols(0, k), c.transpose(), 1.0, Par::rayon(0));
+        crate::spectral::matmul_tall(
+            points.as_mut(),
+            Accum::Replace,
+            phi_r.subcols(0, k),
+            c.transpose(),
+            1.0,
+            Par::rayon(0),
+        );
         let t = nearest_rows_single(phi_t.subcols(0, km), points.as_ref());
         let last = k == kf;
         k = (k + schedule.step).min(kf);
@@ -111,7 +118,14 @@ pub fn point_to_point_partial(
         )));
     }
     let mut points = Mat::<f64>::zeros(reference.n_vertices, km);
-    matmul(points.as_mut(), Accum::Replace, basis(reference, kr), c.transpose(), 1.0, Par::rayon(0));
+    crate::spectral::matmul_tall(
+        points.as_mut(),
+        Accum::Replace,
+        basis(reference, kr),
+        c.transpose(),
+        1.0,
+        Par::rayon(0),
+    );
     let queries = basis(test, km);
     let sample_points =
         Mat::from_fn(reference_cells.samples.len(), km, |i, j| points[(reference_cells.samples[i], j)]);

@@ -291,7 +291,14 @@ pub fn zoomout_on_samples(
     loop {
         // Test samples onto reference samples: rows of Φ_t against rows of Φ_r Cᵀ.
         let mut points = Mat::<f64>::zeros(phi_r.nrows(), k);
-        matmul(points.as_mut(), Accum::Replace, phi_r.subcols(0, k), c.transpose(), 1.0, Par::rayon(0));
+        crate::spectral::matmul_tall(
+            points.as_mut(),
+            Accum::Replace,
+            phi_r.subcols(0, k),
+            c.transpose(),
+            1.0,
+            Par::rayon(0),
+        );
         let t = match balls {
             None => nearest_rows_single(phi_t.subcols(0, k), points.as_ref()),
             Some(b) => nearest_among(phi_t.subcols(0, k), points.as_ref(), |i| {
@@ -333,7 +340,14 @@ pub fn point_to_point_in_cells(
         )));
     }
     let mut points = Mat::<f64>::zeros(reference.n_vertices, k);
-    matmul(points.as_mut(), Accum::Replace, basis(reference, k), c.transpose(), 1.0, Par::rayon(0));
+    crate::spectral::matmul_tall(
+        points.as_mut(),
+        Accum::Replace,
+        basis(reference, k),
+        c.transpose(),
+        1.0,
+        Par::rayon(0),
+    );
     let queries = basis(test, k);
     let sample_points =
         Mat::from_fn(reference_cells.samples.len(), k, |i, j| points[(reference_cells.samples[i], j)]);

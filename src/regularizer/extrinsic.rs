@@ -131,12 +131,26 @@ pub fn refine_extrinsic(
             Par::rayon(0),
         );
         let mut deformed = x_t.clone();
-        matmul(deformed.as_mut(), Accum::Add, phi_d, coeffs.as_ref(), 1.0, Par::rayon(0));
+        crate::spectral::matmul_tall(
+            deformed.as_mut(),
+            Accum::Add,
+            phi_d,
+            coeffs.as_ref(),
+            1.0,
+            Par::rayon(0),
+        );
         // Queries [Φ_M, s X̃] against points [Φ_R Cᵀ, s X_R].
         let queries =
             Mat::from_fn(n_t, k + 3, |v, j| if j < k { phi_t[(v, j)] } else { scale * deformed[(v, j - k)] });
         let mut points = Mat::<f64>::zeros(n_r, k + 3);
-        matmul(points.as_mut().subcols_mut(0, k), Accum::Replace, phi_r, c.transpose(), 1.0, Par::rayon(0));
+        crate::spectral::matmul_tall(
+            points.as_mut().subcols_mut(0, k),
+            Accum::Replace,
+            phi_r,
+            c.transpose(),
+            1.0,
+            Par::rayon(0),
+        );
         for r in 0..n_r {
             for d in 0..3 {
                 points[(r, k + d)] = scale * x_r[(r, d)];

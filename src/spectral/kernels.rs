@@ -7,6 +7,7 @@
 //! operations for every output entry, so results do not depend on the number of threads.
 
 use faer::linalg::matmul::matmul;
+use faer::reborrow::ReborrowMut;
 use faer::{Accum, MatMut, MatRef, Par};
 use rayon::prelude::*;
 
@@ -30,6 +31,44 @@ pub(crate) fn nn_subtract(basis: MatRef<'_, f64>, c: MatRef<'_, f64>, w: MatMut<
         8 => nn_fixed::<8>(basis, c, w),
         16 => nn_fixed::<16>(basis, c, w),
         _ => matmul(w, Accum::Add, basis, c, -1.0, Par::Seq),
+    }
+}
+
+/// Rows per strip of [`matmul_tall`].
+const TALL_STRIP: usize = 4096;
+
+/// `dst = beta·dst + alpha · lhs · rhs` for a tall `lhs` (many rows, few columns), one strip of
+/// [`TALL_STRIP`] rows at a time (in parallel over strips for `Par::Rayon`, each strip on one
+/// thread). The same entries, bit for bit, as one `faer` product, but bounded packing: faer's
+/// x86 kernel sizes its per-thread packing buffer from the L3 size that the CPU reports
+/// (260 MiB on our VM), packs the whole of a tall `lhs` into it and keeps those pages resident
+/// for the thread's lifetime: one product of a 52K × 240 basis left ~130 MB per thread.
+pub(crate) fn matmul_tall<T: faer::traits::ComplexField>(
+    dst: MatMut<'_, T>,
+    beta: Accum,
+    lhs: MatRef<'_, T>,
+    rhs: MatRef<'_, T>,
+    alpha: T,
+    par: Par,
+) {
+    if lhs.nrows() <= TALL_STRIP {
+        matmul(dst, beta, lhs, rhs, alpha, par);
+        return;
+    }
+    match par {
+        Par::Seq => {
+            let mut dst = dst;
+            for r0 in (0..lhs.nrows()).step_by(TALL_STRIP) {
+                let rows = TALL_STRIP.min(lhs.nrows() - r0);
+                let d = dst.rb_mut().subrows_mut(r0, rows);
+                matmul(d, beta, lhs.subrows(r0, rows), rhs, alpha.clone(), Par::Seq);
+            }
+        }
+        _ => {
+            dst.par_row_chunks_mut(TALL_STRIP).zip(lhs.par_row_chunks(TALL_STRIP)).for_each(|(d, l)| {
+                matmul(d, beta, l, rhs, alpha.clone(), Par::Seq);
+            });
+        }
     }
 }
 
@@ -513,6 +552,29 @@ mod tests {
         nn_subtract(v.as_ref(), c.as_ref(), w2.as_mut());
         let w_ref = &w - &v * &c;
         assert!((&w2 - &w_ref).norm_max() < 1e-9);
+    }
+
+    /// The strip-by-strip product is the one-piece product bit for bit (sequential and in
+    /// parallel, with accumulation, a strided `lhs` and a last strip shorter than the others).
+    #[test]
+    fn tall_products_in_strips_equal_one_product_bit_for_bit() {
+        let (n, k, m) = (3 * TALL_STRIP + 123, 37, 23);
+        let big = Mat::<f64>::from_fn(n, k + 5, |i, j| {
+            ((i * 31 + j * 17) % 101) as f64 / 7.0 - 6.5 + 1e-3 * j as f64
+        });
+        let lhs = big.as_ref().subcols(3, k);
+        let rhs = Mat::<f64>::from_fn(k, m, |i, j| ((i * 5 + j * 11) % 13) as f64 / 3.0 - 2.0);
+        let start = Mat::<f64>::from_fn(n, m, |i, j| (i + j) as f64 * 0.25);
+        for beta in [Accum::Replace, Accum::Add] {
+            let mut want = start.clone();
+            matmul(want.as_mut(), beta, lhs, rhs.as_ref(), 0.75, Par::Seq);
+            for par in [Par::Seq, Par::rayon(2)] {
+                let mut got = start.clone();
+                matmul_tall(got.as_mut(), beta, lhs, rhs.as_ref(), 0.75, par);
+                let same = (0..m).all(|j| (0..n).all(|i| got[(i, j)].to_bits() == want[(i, j)].to_bits()));
+                assert!(same, "{beta:?} {par:?}");
+            }
+        }
     }
 
     /// The AVX-512 kernels give the AVX2 kernels' results bit for bit (so the spectrum does not

@@ -254,7 +254,14 @@ impl BlockLanczos {
                 }
                 let mut vectors = Mat::<f64>::zeros(n, self.nev);
                 let s_sel = Mat::<f64>::from_fn(m, self.nev, |i, j| evd_u[(i, m - 1 - j)]);
-                matmul(vectors.as_mut(), Accum::Replace, v.as_ref().subcols(0, m), s_sel.as_ref(), 1.0, par);
+                super::kernels::matmul_tall(
+                    vectors.as_mut(),
+                    Accum::Replace,
+                    v.as_ref().subcols(0, m),
+                    s_sel.as_ref(),
+                    1.0,
+                    par,
+                );
                 return Ok(LanczosOutput {
                     theta: theta[..self.nev].to_vec(),
                     vectors,

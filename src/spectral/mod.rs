@@ -23,6 +23,7 @@ mod cache;
 pub(crate) mod cholesky;
 mod dense;
 mod kernels;
+pub(crate) use kernels::matmul_tall;
 mod lanczos;
 mod laplacian;
 pub mod solver;

@@ -570,7 +570,7 @@ impl LaplaceBeltramiSolver {
         if null.ncols() > 0 {
             let mut nz = Mat::<f64>::zeros(null.ncols(), p);
             matmul(nz.as_mut(), Accum::Replace, null.transpose(), z.as_ref(), 1.0, Par::Seq);
-            matmul(z.as_mut(), Accum::Add, null, nz.as_ref(), -1.0, Par::Seq);
+            super::kernels::matmul_tall(z.as_mut(), Accum::Add, null, nz.as_ref(), -1.0, Par::Seq);
         }
         // Gram matrix G = ZᵀZ ≈ I and A = Zᵀ L̂ Z = Zᵀ Y Θ⁻¹ + σ G.
         let mut g = Mat::<f64>::zeros(p, p);
@@ -601,7 +601,7 @@ impl LaplaceBeltramiSolver {
         let mut ws = Mat::<f64>::zeros(p, p);
         matmul(ws.as_mut(), Accum::Replace, w.as_ref(), s.as_ref(), 1.0, Par::Seq);
         let mut out = Mat::<f64>::zeros(na, p);
-        matmul(out.as_mut(), Accum::Replace, z.as_ref(), ws.as_ref(), 1.0, Par::Seq);
+        super::kernels::matmul_tall(out.as_mut(), Accum::Replace, z.as_ref(), ws.as_ref(), 1.0, Par::Seq);
         Ok((vals.into_iter().map(|l| l.max(0.0)).collect(), out))
     }
 
