@@ -554,6 +554,15 @@ pub fn point_to_point_rows(
     Ok(nearest_rows(emb.as_ref(), basis(reference, kr)))
 }
 
+/// The reference rows mapped into the test basis, `Φ_R Cᵀ` (`phi_r.nrows() × c.nrows()`; `phi_r`
+/// holds the first `c.ncols()` reference basis functions): the points that test rows of `Φ_M`
+/// are searched among. In row strips, see [`crate::spectral::matmul_tall`].
+pub(crate) fn mapped_reference_rows(phi_r: MatRef<'_, f64>, c: MatRef<'_, f64>) -> Mat<f64> {
+    let mut points = Mat::<f64>::zeros(phi_r.nrows(), c.nrows());
+    crate::spectral::matmul_tall(points.as_mut(), Accum::Replace, phi_r, c.transpose(), 1.0, Par::rayon(0));
+    points
+}
+
 /// The test shape's spectral embedding mapped into the reference basis, `Φ_M[:, :k_test] C`
 /// (`n_test × k_ref`), after checking the basis sizes.
 fn pulled_back_embedding(
@@ -669,15 +678,7 @@ pub fn point_to_point_orthogonal(
     let (kt, kr) = (c.nrows(), c.ncols());
     check_basis("test", test, kt)?;
     check_basis("reference", reference, kr)?;
-    let mut points = Mat::zeros(reference.n_vertices, kt);
-    crate::spectral::matmul_tall(
-        points.as_mut(),
-        Accum::Replace,
-        basis(reference, kr),
-        c.transpose(),
-        1.0,
-        Par::rayon(0),
-    );
+    let points = mapped_reference_rows(basis(reference, kr), c);
     Ok(nearest_rows(basis(test, kt), points.as_ref()))
 }
 

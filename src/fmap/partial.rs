@@ -18,10 +18,10 @@
 //! vertex looks for its nearest reference row; reference points outside the part's image are
 //! simply never chosen). With `k_M = k_R` at every step this is the square ZoomOut.
 
-use faer::{Accum, Mat, MatRef, Par};
+use faer::{Mat, MatRef};
 
 use super::{
-    basis, check_basis, nearest_rows_single,
+    basis, check_basis, mapped_reference_rows, nearest_rows_single,
     sampled::{basis_rows, check_map, check_sizes, SampledFit},
     FmapError, SampleCells, ZoomOutSchedule,
 };
@@ -77,15 +77,7 @@ pub fn zoomout_partial_on_samples(
     let mut c = fit.fit(km, k, &|i, j| phi_ref[(first[i], j)])?;
     loop {
         // Part samples onto reference samples: rows of Φ_M[:, :k_M] against Φ_R[:, :k_R] Cᵀ.
-        let mut points = Mat::<f64>::zeros(phi_r.nrows(), km);
-        crate::spectral::matmul_tall(
-            points.as_mut(),
-            Accum::Replace,
-            phi_r.subcols(0, k),
-            c.transpose(),
-            1.0,
-            Par::rayon(0),
-        );
+        let points = mapped_reference_rows(phi_r.subcols(0, k), c.as_ref());
         let t = nearest_rows_single(phi_t.subcols(0, km), points.as_ref());
         let last = k == kf;
         k = (k + schedule.step).min(kf);
@@ -117,15 +109,7 @@ pub fn point_to_point_partial(
             reference.n_vertices
         )));
     }
-    let mut points = Mat::<f64>::zeros(reference.n_vertices, km);
-    crate::spectral::matmul_tall(
-        points.as_mut(),
-        Accum::Replace,
-        basis(reference, kr),
-        c.transpose(),
-        1.0,
-        Par::rayon(0),
-    );
+    let points = mapped_reference_rows(basis(reference, kr), c);
     let queries = basis(test, km);
     let sample_points =
         Mat::from_fn(reference_cells.samples.len(), km, |i, j| points[(reference_cells.samples[i], j)]);

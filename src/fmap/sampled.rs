@@ -11,7 +11,9 @@
 use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par, Side};
 use rayon::prelude::*;
 
-use super::{basis, check_basis, nearest_rows_single, squared_distance, FmapError, RowMajor};
+use super::{
+    basis, check_basis, mapped_reference_rows, nearest_rows_single, squared_distance, FmapError, RowMajor,
+};
 use crate::spectral::Spectrum;
 
 /// Samples of a shape and the cells they split it into: every vertex belongs to the cell of its
@@ -290,15 +292,7 @@ pub fn zoomout_on_samples(
     let mut c = fit.fit(k, k, &|i, j| phi_ref[(first[i], j)])?;
     loop {
         // Test samples onto reference samples: rows of Φ_t against rows of Φ_r Cᵀ.
-        let mut points = Mat::<f64>::zeros(phi_r.nrows(), k);
-        crate::spectral::matmul_tall(
-            points.as_mut(),
-            Accum::Replace,
-            phi_r.subcols(0, k),
-            c.transpose(),
-            1.0,
-            Par::rayon(0),
-        );
+        let points = mapped_reference_rows(phi_r.subcols(0, k), c.as_ref());
         let t = match balls {
             None => nearest_rows_single(phi_t.subcols(0, k), points.as_ref()),
             Some(b) => nearest_among(phi_t.subcols(0, k), points.as_ref(), |i| {
@@ -339,15 +333,7 @@ pub fn point_to_point_in_cells(
             reference.n_vertices
         )));
     }
-    let mut points = Mat::<f64>::zeros(reference.n_vertices, k);
-    crate::spectral::matmul_tall(
-        points.as_mut(),
-        Accum::Replace,
-        basis(reference, k),
-        c.transpose(),
-        1.0,
-        Par::rayon(0),
-    );
+    let points = mapped_reference_rows(basis(reference, k), c);
     let queries = basis(test, k);
     let sample_points =
         Mat::from_fn(reference_cells.samples.len(), k, |i, j| points[(reference_cells.samples[i], j)]);
