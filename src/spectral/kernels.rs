@@ -52,7 +52,8 @@ pub(crate) fn matmul_tall<T: faer::traits::ComplexField>(
     par: Par,
 ) {
     if lhs.nrows() <= TALL_STRIP {
-        matmul(dst, beta, lhs, rhs, alpha, par);
+        // One strip, on this thread (as every strip is), whatever `par` says.
+        matmul(dst, beta, lhs, rhs, alpha, Par::Seq);
         return;
     }
     match par {
@@ -70,6 +71,27 @@ pub(crate) fn matmul_tall<T: faer::traits::ComplexField>(
             });
         }
     }
+}
+
+/// `aᵀ b` for two tall matrices with the same rows: the top and bottom halves of the rows
+/// (split at a fixed row, whatever the number of threads) multiplied side by side and added.
+pub(crate) fn tall_inner_product(a: MatRef<'_, f64>, b: MatRef<'_, f64>) -> faer::Mat<f64> {
+    assert_eq!(a.nrows(), b.nrows());
+    let split = a.nrows() / 2;
+    let half = |r0: usize, rows: usize| {
+        let mut out = faer::Mat::<f64>::zeros(a.ncols(), b.ncols());
+        matmul(
+            out.as_mut(),
+            Accum::Replace,
+            a.subrows(r0, rows).transpose(),
+            b.subrows(r0, rows),
+            1.0,
+            Par::Seq,
+        );
+        out
+    };
+    let (top, bottom) = rayon::join(|| half(0, split), || half(split, a.nrows() - split));
+    top + bottom
 }
 
 fn column(m: MatRef<'_, f64>, j: usize) -> &[f64] {

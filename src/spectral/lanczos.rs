@@ -117,7 +117,7 @@ impl BlockLanczos {
         // The thick restart `V[:, ..keep] ← V[:, ..m] S` is done a strip of rows at a time (row i
         // of the result only reads row i of V), so it needs a strip-sized buffer, not a second
         // n × ncv basis (100 MB at 52K vertices, K = 100).
-        let mut restart_tmp = Mat::<f64>::zeros(RESTART_STRIP.min(n), ncv);
+        let mut restart_tmp = [(); 2].map(|_| Mat::<f64>::zeros(RESTART_STRIP.min(n), ncv));
         let mut norms = vec![0.0; b];
         let mut mid_norms = vec![0.0; b];
         // Basis size at which the current expansion started (right after a (re)start).
@@ -260,7 +260,7 @@ impl BlockLanczos {
                     v.as_ref().subcols(0, m),
                     s_sel.as_ref(),
                     1.0,
-                    par,
+                    Par::rayon(0),
                 );
                 return Ok(LanczosOutput {
                     theta: theta[..self.nev].to_vec(),
@@ -273,13 +273,15 @@ impl BlockLanczos {
             // Thick restart: keep the wanted Ritz vectors plus extra ones, then the residual block.
             let keep = (self.nev + nconv.min((m - self.nev) / 2)).min(ncv - 2 * b);
             let s_keep = Mat::<f64>::from_fn(m, keep, |i, j| evd_u[(i, m - 1 - j)]);
-            for r0 in (0..n).step_by(RESTART_STRIP) {
-                let rows = RESTART_STRIP.min(n - r0);
-                let mut t = restart_tmp.as_mut().submatrix_mut(0, 0, rows, keep);
-                let strip = v.as_ref().submatrix(r0, 0, rows, m);
-                matmul(t.rb_mut(), Accum::Replace, strip, s_keep.as_ref(), 1.0, par);
-                v.as_mut().submatrix_mut(r0, 0, rows, keep).copy_from(t.rb());
-            }
+            // The strips are split into two halves updated side by side, one buffer each.
+            let strips = n.div_ceil(RESTART_STRIP);
+            let split = strips.div_ceil(2) * RESTART_STRIP;
+            let (top, bottom) = v.as_mut().subcols_mut(0, m).split_at_row_mut(split.min(n));
+            let [tmp0, tmp1] = &mut restart_tmp;
+            rayon::join(
+                || restart_rows(top, s_keep.as_ref(), tmp0.as_mut()),
+                || restart_rows(bottom, s_keep.as_ref(), tmp1.as_mut()),
+            );
             for j in 0..b {
                 let (left, right) = v.as_mut().split_at_col_mut(m);
                 let mut left = left;
@@ -293,6 +295,18 @@ impl BlockLanczos {
             fresh = keep;
             restarts += 1;
         }
+    }
+}
+
+/// `V[:, ..keep] ← V S` for the rows of `v` (`S` is `m × keep`), a strip of rows at a time
+/// through `tmp` (row `i` of the result only reads row `i` of `V`).
+fn restart_rows(mut v: MatMut<'_, f64>, s: MatRef<'_, f64>, mut tmp: MatMut<'_, f64>) {
+    let (n, keep) = (v.nrows(), s.ncols());
+    for r0 in (0..n).step_by(RESTART_STRIP) {
+        let rows = RESTART_STRIP.min(n - r0);
+        let mut t = tmp.rb_mut().submatrix_mut(0, 0, rows, keep);
+        matmul(t.rb_mut(), Accum::Replace, v.rb().subrows(r0, rows), s, 1.0, Par::Seq);
+        v.rb_mut().submatrix_mut(r0, 0, rows, keep).copy_from(t.rb());
     }
 }
 
@@ -312,6 +326,34 @@ fn project_out(basis: MatRef<'_, f64>, mut w: MatMut<'_, f64>, mut c: MatMut<'_,
 /// `R` is zero, which keeps the Krylov relation exact up to the discarded remainder).
 #[allow(clippy::too_many_arguments)]
 fn orthonormalize_block(
+    locked: MatRef<'_, f64>,
+    basis: MatRef<'_, f64>,
+    mut w: MatMut<'_, f64>,
+    mut r: MatMut<'_, f64>,
+    norms: &[f64],
+    lcoef: MatMut<'_, f64>,
+    rng: &mut ChaCha8Rng,
+    par: Par,
+) -> Result<(), LanczosFailure> {
+    match cholesky_qr2(w.rb_mut(), r.rb_mut(), norms) {
+        CholQr::Done => Ok(()),
+        CholQr::Untouched => gram_schmidt_block(locked, basis, w, r, norms, lcoef, rng, par),
+        CholQr::FirstPass(r1) => {
+            // `w` holds W R₁⁻¹, orthonormal up to ε·cond(W)²: finish with Gram–Schmidt,
+            // R = R_gs R₁.
+            let b = w.ncols();
+            let unit = vec![1.0; b];
+            gram_schmidt_block(locked, basis, w, r.rb_mut(), &unit, lcoef, rng, par)?;
+            let r_gs = r.to_owned();
+            upper_product(r_gs.as_ref(), r1.as_ref(), r);
+            Ok(())
+        }
+    }
+}
+
+/// The Gram–Schmidt path of [`orthonormalize_block`] (same contract).
+#[allow(clippy::too_many_arguments)]
+fn gram_schmidt_block(
     locked: MatRef<'_, f64>,
     basis: MatRef<'_, f64>,
     mut w: MatMut<'_, f64>,
@@ -373,6 +415,98 @@ fn orthonormalize_block(
         scale(col_mut(w.rb_mut(), j), 1.0 / nrm);
     }
     Ok(())
+}
+
+/// Relative pivot of the Cholesky QR below which a block is too ill-conditioned for it
+/// (`cond(W)` of the column-scaled block above ~10⁵ would leave orthogonality errors above
+/// `ε·cond²`); such blocks go through modified Gram–Schmidt.
+const CHOLQR_PIVOT: f64 = 1e-5;
+
+/// Outcome of [`cholesky_qr2`].
+enum CholQr {
+    /// `w ← Q`, `r ← R`.
+    Done,
+    /// The block is too ill-conditioned; `w` and `r` are untouched.
+    Untouched,
+    /// Only the first pass was applied (`w ← W R₁⁻¹`, `r` untouched): the second Cholesky
+    /// factorisation failed, which round-off alone should never cause.
+    FirstPass(Mat<f64>),
+}
+
+/// QR of a block by Cholesky QR done twice (`G = WᵀW = R₁ᵀR₁`, `W ← W R₁⁻¹`, then again):
+/// two passes over the block instead of Gram–Schmidt's one per pair of columns, each pass in
+/// parallel over rows. Declines (leaving `w` untouched) when a column is nearly dependent on the
+/// others (relative pivot below [`CHOLQR_PIVOT`]) or cancelled below [`WEAK`] of its norm before
+/// orthogonalisation: Gram–Schmidt handles those.
+fn cholesky_qr2(mut w: MatMut<'_, f64>, r: MatMut<'_, f64>, norms: &[f64]) -> CholQr {
+    let b = w.ncols();
+    let mut g = Mat::<f64>::zeros(b, b);
+    tn_product(w.rb(), w.rb(), g.as_mut());
+    let Some(r1) = upper_cholesky(g.as_ref()) else { return CholQr::Untouched };
+    for j in 0..b {
+        let colnorm = g[(j, j)].sqrt();
+        if r1[(j, j)] <= CHOLQR_PIVOT * colnorm || r1[(j, j)] <= WEAK * norms[j].max(f64::MIN_POSITIVE) {
+            return CholQr::Untouched;
+        }
+    }
+    solve_right_upper(w.rb_mut(), r1.as_ref());
+    tn_product(w.rb(), w.rb(), g.as_mut());
+    let Some(r2) = upper_cholesky(g.as_ref()) else { return CholQr::FirstPass(r1) };
+    solve_right_upper(w.rb_mut(), r2.as_ref());
+    upper_product(r2.as_ref(), r1.as_ref(), r);
+    CholQr::Done
+}
+
+/// `out = a b` for upper triangular `a` and `b`.
+fn upper_product(a: MatRef<'_, f64>, b: MatRef<'_, f64>, mut out: MatMut<'_, f64>) {
+    let n = a.nrows();
+    out.fill(0.0);
+    for j in 0..n {
+        for i in 0..=j {
+            out[(i, j)] = (i..=j).map(|k| a[(i, k)] * b[(k, j)]).sum();
+        }
+    }
+}
+
+/// Upper triangular `R` with `RᵀR = g` for a small symmetric `g`, or `None` when a pivot is not
+/// positive.
+fn upper_cholesky(g: MatRef<'_, f64>) -> Option<Mat<f64>> {
+    let b = g.nrows();
+    let mut r = Mat::<f64>::zeros(b, b);
+    for j in 0..b {
+        for i in 0..=j {
+            let s = g[(i, j)] - (0..i).map(|k| r[(k, i)] * r[(k, j)]).sum::<f64>();
+            if i == j {
+                if !(s > 0.0 && s.is_finite()) {
+                    return None;
+                }
+                r[(j, j)] = s.sqrt();
+            } else {
+                r[(i, j)] = s / r[(i, i)];
+            }
+        }
+    }
+    Some(r)
+}
+
+/// `w ← w R⁻¹` for an upper triangular `R`, in parallel over row chunks (rows are independent,
+/// so the result does not depend on the number of threads).
+fn solve_right_upper(w: MatMut<'_, f64>, r: MatRef<'_, f64>) {
+    use rayon::prelude::*;
+    const ROWS: usize = 2048;
+    let b = w.ncols();
+    let inv_diag: Vec<f64> = (0..b).map(|j| 1.0 / r[(j, j)]).collect();
+    w.par_row_chunks_mut(ROWS).for_each(|mut chunk| {
+        for j in 0..b {
+            for i in 0..j {
+                let c = r[(i, j)];
+                let (left, right) = chunk.rb_mut().split_at_col_mut(j);
+                let qi = col(left.into_const(), i);
+                axpy(-c, qi, col_mut(right, 0));
+            }
+            scale(col_mut(chunk.rb_mut(), j), inv_diag[j]);
+        }
+    });
 }
 
 /// One classical Gram–Schmidt pass of column `j` of `w` against `locked`, `basis` and the
@@ -504,6 +638,56 @@ mod tests {
             let e = 1.0 / (2.0 + i as f64);
             assert!((t - e).abs() < 1e-9, "{t} vs {e}");
         }
+    }
+
+    /// Block QR, by either path: `QᵀQ = I`, `QR = W`, `R` upper triangular.
+    fn check_block_qr(w: &Mat<f64>) {
+        let (n, b) = (w.nrows(), w.ncols());
+        let mut q = w.clone();
+        let mut r = Mat::<f64>::zeros(b, b);
+        let norms: Vec<f64> = (0..b).map(|j| norm(col(w.as_ref(), j))).collect();
+        let locked = Mat::<f64>::zeros(n, 0);
+        let basis = Mat::<f64>::zeros(n, 0);
+        let mut lcoef = Mat::<f64>::zeros(0, b);
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        orthonormalize_block(
+            locked.as_ref(),
+            basis.as_ref(),
+            q.as_mut(),
+            r.as_mut(),
+            &norms,
+            lcoef.as_mut(),
+            &mut rng,
+            Par::Seq,
+        )
+        .unwrap();
+        let gram = q.transpose() * &q;
+        let recon = &q * &r;
+        for i in 0..b {
+            for j in 0..b {
+                let want = if i == j { 1.0 } else { 0.0 };
+                assert!((gram[(i, j)] - want).abs() < 1e-13, "QᵀQ[{i},{j}] = {}", gram[(i, j)]);
+                if i > j {
+                    assert_eq!(r[(i, j)], 0.0);
+                }
+            }
+        }
+        let scale = w.norm_max();
+        assert!((&recon - w).norm_max() < 1e-12 * scale, "QR differs from W");
+    }
+
+    #[test]
+    fn block_qr_is_exact_for_well_and_ill_conditioned_blocks() {
+        let n = 5000;
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let w = Mat::<f64>::from_fn(n, 8, |_, j| rng.random_range(-1.0..1.0) * (1.0 + j as f64));
+        check_block_qr(&w); // Cholesky QR
+        let mut bad = w.clone();
+        for i in 0..n {
+            // Column 5 nearly parallel to column 2: Cholesky QR declines, Gram–Schmidt runs.
+            bad[(i, 5)] = bad[(i, 2)] + 1e-9 * bad[(i, 5)];
+        }
+        check_block_qr(&bad);
     }
 
     #[test]

@@ -44,6 +44,7 @@ use faer::sparse::linalg::cholesky::{
 use faer::sparse::linalg::matmul::sparse_dense_matmul;
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Accum, Conj, Mat, MatMut, MatRef, Par, Side};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::cholesky::{numeric_llt, supernodal_symbolic};
@@ -52,8 +53,9 @@ use super::{surface_operator, LaplacianKind, SpectralError, Spectrum, SurfaceOpe
 use crate::mesh::{Mesh, UnionFind};
 
 /// Version of the numerical method; part of the spectrum cache key, bump it when results change.
-/// (2: meshes with non-manifold edges use the tufted Laplacian.)
-pub const SOLVER_VERSION: u32 = 2;
+/// (2: meshes with non-manifold edges use the tufted Laplacian; 3: basis 240, Cholesky QR
+/// blocks, solves split in two: the same pairs to round-off, other bits.)
+pub const SOLVER_VERSION: u32 = 3;
 
 /// Relative mass floor: active vertices get at least `MASS_FLOOR / n` of the unit total area.
 const MASS_FLOOR: f64 = 1e-12;
@@ -118,7 +120,7 @@ impl SpectrumParams {
             k,
             shift: -0.01,
             block_size: 8,
-            max_basis: 240.max(k * 12 / 5 + 16),
+            max_basis: 240.max(k * 12 / 5),
             tol: 1e-10,
             seed: 0,
             max_restarts: 100,
@@ -397,33 +399,53 @@ impl LaplaceBeltramiSolver {
                 y.as_mut().subcols_mut(c, k - c).copy_from(vecs.as_ref());
             }
             SpectrumMethod::Lanczos => {
+                let t0 = std::time::Instant::now();
                 let out = self.lanczos_rest(k - c, null.as_ref())?;
+                let t_lanczos = t0.elapsed();
                 restarts = out.restarts;
                 block_solves = out.applications;
                 let (vals, vecs) = self.purify(&out.theta, out.vectors, null.as_ref().subcols(0, c))?;
                 lambda[c..].copy_from_slice(&vals);
                 y.as_mut().subcols_mut(c, k - c).copy_from(vecs.as_ref());
+                tracing::debug!(lanczos = ?t_lanczos, purify = ?(t0.elapsed() - t_lanczos), "Lanczos stages");
             }
         }
 
         // Rayleigh quotients and residuals in the scaled space:
         // ‖Lφ − λMφ‖_{M⁻¹} = ‖L̂y − λy‖ and φᵀLφ = yᵀL̂y for ‖y‖ = 1.
         let mut ly = Mat::<f64>::zeros(na, k);
-        sparse_dense_matmul(ly.as_mut(), Accum::Replace, self.lhat.as_ref(), y.as_ref(), 1.0, Par::Seq);
+        {
+            let half = k.div_ceil(2);
+            let (ly0, ly1) = ly.as_mut().split_at_col_mut(half);
+            let (y0, y1) = y.as_ref().split_at_col(half);
+            let lhat = self.lhat.as_ref();
+            rayon::join(
+                || sparse_dense_matmul(ly0, Accum::Replace, lhat, y0, 1.0, Par::Seq),
+                || sparse_dense_matmul(ly1, Accum::Replace, lhat, y1, 1.0, Par::Seq),
+            );
+        }
+        // Per pair: the Rayleigh quotient (the null space keeps λ = 0) and the residual.
+        let pairs: Vec<(f64, f64)> = (0..k)
+            .into_par_iter()
+            .map(|j| {
+                let (yj, lyj) = (y.col_as_slice(j), ly.col_as_slice(j));
+                let lam = if j < c {
+                    lambda[j]
+                } else {
+                    let rq: f64 = yj.iter().zip(lyj).map(|(a, b)| a * b).sum::<f64>();
+                    let nn: f64 = yj.iter().map(|a| a * a).sum::<f64>();
+                    (rq / nn).max(0.0)
+                };
+                let r: f64 = yj.iter().zip(lyj).map(|(a, b)| (b - lam * a).powi(2)).sum::<f64>().sqrt();
+                (lam, r / lam.max(1.0))
+            })
+            .collect();
         let mut max_res = 0.0f64;
         let mut residuals = vec![0.0; k];
-        for (j, lam) in lambda.iter_mut().enumerate().skip(c) {
-            let yj = y.col_as_slice(j);
-            let lyj = ly.col_as_slice(j);
-            let rq: f64 = yj.iter().zip(lyj).map(|(a, b)| a * b).sum::<f64>();
-            let nn: f64 = yj.iter().map(|a| a * a).sum::<f64>();
-            *lam = (rq / nn).max(0.0);
-        }
-        for j in 0..k {
-            let (yj, lyj) = (y.col_as_slice(j), ly.col_as_slice(j));
-            let r: f64 = yj.iter().zip(lyj).map(|(a, b)| (b - lambda[j] * a).powi(2)).sum::<f64>().sqrt();
-            residuals[j] = r / lambda[j].max(1.0);
-            max_res = max_res.max(residuals[j]);
+        for (j, &(lam, res)) in pairs.iter().enumerate() {
+            lambda[j] = lam;
+            residuals[j] = res;
+            max_res = max_res.max(res);
         }
         // Not needed any more: freed before the verification's factorisation.
         drop(ly);
@@ -528,10 +550,10 @@ impl LaplaceBeltramiSolver {
             seed: self.params.seed,
         };
         let llt = LltRef::<usize, f64>::new(&factor.symbolic, &factor.values);
-        let mut mem = MemBuffer::new(factor.symbolic.solve_in_place_scratch::<f64>(b, Par::Seq));
+        let mut solver = SplitSolve::new(&factor.symbolic, b);
         let mut op = |x: MatRef<'_, f64>, mut y: MatMut<'_, f64>| {
             y.copy_from(x);
-            llt.solve_in_place_with_conj(Conj::No, y, Par::Seq, MemStack::new(&mut mem));
+            solver.solve(llt, y);
         };
         let k = self.params.k;
         let c = self.n_components;
@@ -559,8 +581,7 @@ impl LaplaceBeltramiSolver {
         let sigma = self.params.shift;
         let mut z = y.clone();
         let llt = LltRef::<usize, f64>::new(&factor.symbolic, &factor.values);
-        let mut mem = MemBuffer::new(factor.symbolic.solve_in_place_scratch::<f64>(p, Par::Seq));
-        llt.solve_in_place_with_conj(Conj::No, z.as_mut(), Par::Seq, MemStack::new(&mut mem));
+        SplitSolve::new(&factor.symbolic, p).solve(llt, z.as_mut());
         for (j, &t) in theta.iter().enumerate() {
             for x in z.col_as_slice_mut(j) {
                 *x /= t;
@@ -570,13 +591,11 @@ impl LaplaceBeltramiSolver {
         if null.ncols() > 0 {
             let mut nz = Mat::<f64>::zeros(null.ncols(), p);
             matmul(nz.as_mut(), Accum::Replace, null.transpose(), z.as_ref(), 1.0, Par::Seq);
-            super::kernels::matmul_tall(z.as_mut(), Accum::Add, null, nz.as_ref(), -1.0, Par::Seq);
+            super::kernels::matmul_tall(z.as_mut(), Accum::Add, null, nz.as_ref(), -1.0, Par::rayon(0));
         }
         // Gram matrix G = ZᵀZ ≈ I and A = Zᵀ L̂ Z = Zᵀ Y Θ⁻¹ + σ G.
-        let mut g = Mat::<f64>::zeros(p, p);
-        matmul(g.as_mut(), Accum::Replace, z.transpose(), z.as_ref(), 1.0, Par::Seq);
-        let mut a = Mat::<f64>::zeros(p, p);
-        matmul(a.as_mut(), Accum::Replace, z.transpose(), y.as_ref(), 1.0, Par::Seq);
+        let g = super::kernels::tall_inner_product(z.as_ref(), z.as_ref());
+        let mut a = super::kernels::tall_inner_product(z.as_ref(), y.as_ref());
         // Y is not read again: freed before the n × p result is allocated.
         drop(y);
         for j in 0..p {
@@ -601,7 +620,14 @@ impl LaplaceBeltramiSolver {
         let mut ws = Mat::<f64>::zeros(p, p);
         matmul(ws.as_mut(), Accum::Replace, w.as_ref(), s.as_ref(), 1.0, Par::Seq);
         let mut out = Mat::<f64>::zeros(na, p);
-        super::kernels::matmul_tall(out.as_mut(), Accum::Replace, z.as_ref(), ws.as_ref(), 1.0, Par::Seq);
+        super::kernels::matmul_tall(
+            out.as_mut(),
+            Accum::Replace,
+            z.as_ref(),
+            ws.as_ref(),
+            1.0,
+            Par::rayon(0),
+        );
         Ok((vals.into_iter().map(|l| l.max(0.0)).collect(), out))
     }
 
@@ -667,6 +693,36 @@ impl LaplaceBeltramiSolver {
             }
         }
         Ok(negative)
+    }
+}
+
+/// Sparse triangular solves of a block of right-hand sides, its columns split in two halves
+/// solved side by side (`rayon::join`). The split does not depend on the number of threads, so
+/// results are the same bits on one thread or several.
+struct SplitSolve {
+    mem: [MemBuffer; 2],
+}
+
+impl SplitSolve {
+    fn new(symbolic: &SymbolicCholesky<usize>, cols: usize) -> Self {
+        let half = cols.div_ceil(2).max(1);
+        let scratch = || MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(half, Par::Seq));
+        Self { mem: [scratch(), scratch()] }
+    }
+
+    /// `y ← A⁻¹ y` with `A = LLᵀ`.
+    fn solve(&mut self, llt: LltRef<'_, usize, f64>, y: MatMut<'_, f64>) {
+        let half = y.ncols().div_ceil(2);
+        let (left, right) = y.split_at_col_mut(half);
+        let [m0, m1] = &mut self.mem;
+        rayon::join(
+            || llt.solve_in_place_with_conj(Conj::No, left, Par::Seq, MemStack::new(m0)),
+            || {
+                if right.ncols() > 0 {
+                    llt.solve_in_place_with_conj(Conj::No, right, Par::Seq, MemStack::new(m1));
+                }
+            },
+        );
     }
 }
 
