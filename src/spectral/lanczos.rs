@@ -20,7 +20,9 @@
 //! be missed by any Krylov method, which is why the caller locks the known null space and can
 //! verify the result by counting eigenvalues (Sylvester inertia).
 //!
-//! Everything is sequential and seeded, so results are bit-for-bit reproducible.
+//! The start is seeded and every parallel step splits its work at fixed points (row chunks,
+//! column halves), never by the number of threads, so results are bit-for-bit reproducible on
+//! any number of threads.
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::evd::{self_adjoint_evd, self_adjoint_evd_scratch, ComputeEigenvectors};

@@ -827,6 +827,22 @@ mod tests {
     use crate::synth::{icosphere, torus};
 
     #[test]
+    fn spectrum_bits_do_not_depend_on_the_number_of_threads() {
+        // 5,000 vertices: several row chunks and strips in every parallel step of the solve.
+        let mesh = torus(100, 50, 1.0, 0.3);
+        let params = SpectrumParams::new(30);
+        let solve = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| LaplaceBeltramiSolver::new(&mesh, &params).unwrap().solve_with_report().unwrap())
+        };
+        let (one, one_report) = solve(1);
+        let (three, _) = solve(3);
+        assert_eq!(one_report.method, SpectrumMethod::Lanczos);
+        assert_eq!(one.eigenvalues, three.eigenvalues);
+        assert_eq!(one.eigenvectors, three.eigenvectors);
+    }
+
+    #[test]
     fn sign_convention_makes_largest_entry_positive() {
         let mut v = vec![0.1, -0.9, 0.3];
         apply_sign_convention(&mut v);
