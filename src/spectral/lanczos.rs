@@ -470,25 +470,12 @@ fn upper_product(a: MatRef<'_, f64>, b: MatRef<'_, f64>, mut out: MatMut<'_, f64
     }
 }
 
-/// Upper triangular `R` with `RᵀR = g` for a small symmetric `g`, or `None` when a pivot is not
-/// positive.
+/// Upper triangular `R` with `RᵀR = g` (faer's dense Cholesky factor, transposed), or `None`
+/// when `g` is not numerically positive definite.
 fn upper_cholesky(g: MatRef<'_, f64>) -> Option<Mat<f64>> {
-    let b = g.nrows();
-    let mut r = Mat::<f64>::zeros(b, b);
-    for j in 0..b {
-        for i in 0..=j {
-            let s = g[(i, j)] - (0..i).map(|k| r[(k, i)] * r[(k, j)]).sum::<f64>();
-            if i == j {
-                if !(s > 0.0 && s.is_finite()) {
-                    return None;
-                }
-                r[(j, j)] = s.sqrt();
-            } else {
-                r[(i, j)] = s / r[(i, i)];
-            }
-        }
-    }
-    Some(r)
+    let llt = g.llt(faer::Side::Lower).ok()?;
+    let r = llt.L().transpose().to_owned();
+    (0..r.nrows()).all(|j| r[(j, j)].is_finite() && r[(j, j)] > 0.0).then_some(r)
 }
 
 /// `w ← w R⁻¹` for an upper triangular `R`, in parallel over row chunks (rows are independent,
