@@ -10,7 +10,9 @@ use faer::{Conj, Mat, MatMut, Par};
 use rayon::prelude::*;
 
 use crate::mesh::{cross, dot, norm, sub, Mesh};
-use crate::spectral::cholesky::{numeric_llt, supernodal_symbolic};
+use crate::spectral::cholesky::{
+    fill_reducing_positions, numeric_llt, permuted, supernodal_symbolic_in_order,
+};
 
 use super::topology::{check_sources, edges_with_face_counts, vertex_components, vertex_on_boundary};
 use super::{mean_edge_length, GeodesicError};
@@ -56,8 +58,9 @@ struct Cholesky {
 }
 
 impl Cholesky {
+    /// Symbolic analysis of a matrix already in its fill-reducing order.
     fn symbolic(a: &SparseColMat<usize, f64>) -> Result<Arc<SymbolicCholesky<usize>>, GeodesicError> {
-        supernodal_symbolic(a)
+        supernodal_symbolic_in_order(a)
             .map(Arc::new)
             .map_err(|reason| GeodesicError::Factorization { matrix: "symbolic", reason })
     }
@@ -186,9 +189,13 @@ struct DirichletSystem {
 /// ```
 pub struct HeatMethodSolver {
     n_vertices: usize,
+    /// Faces, with their corners' positions in the solver's order.
     faces: Vec<[usize; 3]>,
     face_operators: Vec<FaceOperator>,
+    /// Connected component of each position.
     components: Vec<usize>,
+    /// Position of each vertex in the solver's (fill-reducing) order.
+    position: Vec<usize>,
     time: f64,
     boundary: HeatBoundary,
     heat_neumann: Cholesky,
@@ -296,6 +303,27 @@ fn source_heat(mass: &[f64]) -> f64 {
 /// Columns processed side by side in the gradient and divergence step.
 const COLUMN_GROUP: usize = 8;
 
+/// `values` rearranged into the order `position` (value of row `i` at `position[i]`).
+fn in_order<T: Copy + Default>(values: &[T], position: &[usize]) -> Vec<T> {
+    let mut out = vec![T::default(); values.len()];
+    for (&p, &x) in position.iter().zip(values) {
+        out[p] = x;
+    }
+    out
+}
+
+/// A vector of `len` zeros whose pages have been written (in parallel), not only mapped.
+/// A large `vec![0.0; len]` gets fresh pages that the kernel maps to its shared zero page on
+/// the first read; a solve that reads a mostly-zero right-hand side before writing it then
+/// takes a copy-on-write fault per page, each with a TLB flush on every core (measured: 12 % of
+/// the samples of a 28K-vertex scan's `match`, all in the heat method's block solves). Written
+/// zeros cost one plain fault per page instead.
+fn written_zeros(len: usize) -> Vec<f64> {
+    let mut v = Vec::with_capacity(len);
+    v.par_extend(rayon::iter::repeat_n(0.0, len));
+    v
+}
+
 /// One face's share of `−div X`, `X = −∇u/|∇u|`, for the `COLUMN_GROUP` interleaved columns of
 /// `u` (`u[v · COLUMN_GROUP + c]`), added into `rhs` (same layout): `rhs_i += w_i · ∇u/|∇u|`,
 /// with `∇u` scaled by `1/max|∇u_d|` first so that tiny far-field gradients do not underflow
@@ -372,6 +400,15 @@ impl HeatMethodSolver {
             })
             .collect();
         let poisson_op = combine(n, &l, 1.0, &poisson_diag, 1.0)?;
+        // Both operators are factorised, and every vector of the solver lives, in one
+        // fill-reducing order (AMD of the heat operator's pattern) fixed here: the block solves
+        // then need no permutation of their right-hand sides (otherwise a gather and a scatter
+        // of every column per solve, and an n × s scratch block). Columns go back to vertex
+        // order once, when they leave the solver.
+        let position = fill_reducing_positions(&heat_op)
+            .map_err(|reason| GeodesicError::Factorization { matrix: "symbolic", reason })?;
+        let reorder = |a: &SparseColMat<usize, f64>| permuted(a, &position).map_err(assembly_error);
+        let (heat_op, poisson_op) = (reorder(&heat_op)?, reorder(&poisson_op)?);
         let symbolic = Cholesky::symbolic(&heat_op)?;
         // the two numeric factorisations are independent: run them side by side
         let (heat_neumann, poisson) = rayon::join(
@@ -381,7 +418,7 @@ impl HeatMethodSolver {
         let (heat_neumann, poisson) = (heat_neumann?, poisson?);
 
         let edges = edges_with_face_counts(mesh);
-        let on_boundary = vertex_on_boundary(mesh, &edges);
+        let on_boundary = in_order(&vertex_on_boundary(mesh, &edges), &position);
         let dirichlet = if params.boundary != HeatBoundary::Neumann && on_boundary.iter().any(|&b| b) {
             Some(Self::dirichlet_system(&heat_op, &on_boundary)?)
         } else {
@@ -397,9 +434,10 @@ impl HeatMethodSolver {
         let source_heat = source_heat(&mass);
         Ok(Self {
             n_vertices: n,
-            faces: mesh.faces.clone(),
+            faces: mesh.faces.iter().map(|f| f.map(|v| position[v])).collect(),
             face_operators,
-            components,
+            components: in_order(&components, &position),
+            position,
             time,
             boundary: params.boundary,
             heat_neumann,
@@ -458,7 +496,8 @@ impl HeatMethodSolver {
     /// Geodesic distance from `source` to every vertex.
     pub fn distances_from(&self, source: usize) -> Result<Vec<f64>, GeodesicError> {
         check_sources(&[source], self.n_vertices)?;
-        Ok(self.solve_columns(&[source]))
+        let col = self.solve_columns(&[source]);
+        Ok(self.position.iter().map(|&p| col[p]).collect())
     }
 
     /// Geodesic distances from each source: an `n × s` matrix whose column `j` holds the
@@ -468,16 +507,31 @@ impl HeatMethodSolver {
         check_sources(sources, self.n_vertices)?;
         let n = self.n_vertices;
         let buf = self.solve_columns(sources);
-        Ok(Mat::from_fn(n, sources.len(), |i, j| buf[j * n + i]))
+        Ok(Mat::from_fn(n, sources.len(), |i, j| buf[j * n + self.position[i]]))
     }
 
-    /// The whole pipeline on a column-major `n × s` buffer; sources already checked.
+    /// Geodesic distances from each source, one shared column per source (as
+    /// [`Self::distances_from_many`], without the intermediate matrix).
+    pub fn distance_columns(&self, sources: &[usize]) -> Result<Vec<Arc<[f64]>>, GeodesicError> {
+        check_sources(sources, self.n_vertices)?;
+        let n = self.n_vertices;
+        if n == 0 {
+            return Ok(Vec::new());
+        }
+        let buf = self.solve_columns(sources);
+        Ok(buf.par_chunks(n).map(|col| self.position.iter().map(|&p| col[p]).collect()).collect())
+    }
+
+    /// The whole pipeline on a column-major `n × s` buffer in the solver's order (row
+    /// `position[v]` for vertex `v`); sources already checked.
     fn solve_columns(&self, sources: &[usize]) -> Vec<f64> {
         let n = self.n_vertices;
         let s = sources.len();
+        let sources: Vec<usize> = sources.iter().map(|&v| self.position[v]).collect();
+        let sources = &sources[..];
 
         // 1. heat step
-        let mut heat = vec![0.0; n * s];
+        let mut heat = written_zeros(n * s);
         let use_neumann = self.dirichlet.is_none() || self.boundary != HeatBoundary::Dirichlet;
         if use_neumann {
             for (j, &src) in sources.iter().enumerate() {
@@ -500,25 +554,33 @@ impl HeatMethodSolver {
         // read once per group instead of once per column, and the lanes of a group are
         // computed side by side (vectorisable). Every column's arithmetic, and the order in
         // which faces add into a vertex, are those of a one-column pass: the same numbers.
-        let mut phi = vec![0.0; n * s];
-        phi.par_chunks_mut(n * COLUMN_GROUP).zip(heat.par_chunks(n * COLUMN_GROUP)).for_each(|(rhs, u)| {
-            let cols = rhs.len() / n;
-            let mut ut = vec![0.0; n * COLUMN_GROUP];
-            for c in 0..cols {
-                for (v, &x) in u[c * n..(c + 1) * n].iter().enumerate() {
-                    ut[v * COLUMN_GROUP + c] = x;
+        // The right-hand side replaces the heat in place (a group's heat is copied out first),
+        // with one pair of group buffers per rayon job rather than per group.
+        let group = n * COLUMN_GROUP;
+        heat.par_chunks_mut(group).for_each_init(
+            || (written_zeros(group), written_zeros(group)),
+            |(ut, rt), u| {
+                let cols = u.len() / n;
+                if cols < COLUMN_GROUP {
+                    ut.fill(0.0); // padding lanes: zero heat, zero gradient
                 }
-            }
-            let mut rt = vec![0.0; n * COLUMN_GROUP];
-            for (f, op) in self.faces.iter().zip(&self.face_operators) {
-                divergence_of_normalised_gradient(op, f, &ut, &mut rt);
-            }
-            for c in 0..cols {
-                for (v, x) in rhs[c * n..(c + 1) * n].iter_mut().enumerate() {
-                    *x = rt[v * COLUMN_GROUP + c];
+                for c in 0..cols {
+                    for (v, &x) in u[c * n..(c + 1) * n].iter().enumerate() {
+                        ut[v * COLUMN_GROUP + c] = x;
+                    }
                 }
-            }
-        });
+                rt.fill(0.0);
+                for (f, op) in self.faces.iter().zip(&self.face_operators) {
+                    divergence_of_normalised_gradient(op, f, ut, rt);
+                }
+                for c in 0..cols {
+                    for (v, x) in u[c * n..(c + 1) * n].iter_mut().enumerate() {
+                        *x = rt[v * COLUMN_GROUP + c];
+                    }
+                }
+            },
+        );
+        let mut phi = heat;
 
         // 4. Poisson solve
         self.poisson.solve_block(&mut phi, n);
@@ -539,7 +601,7 @@ impl HeatMethodSolver {
     fn dirichlet_heat(&self, dir: &DirichletSystem, sources: &[usize]) -> Vec<f64> {
         let n = self.n_vertices;
         let ni = dir.interior.len();
-        let mut interior_rhs = vec![0.0; ni * sources.len()];
+        let mut interior_rhs = written_zeros(ni * sources.len());
         let sym = dir.heat_operator.symbolic();
         let vals = dir.heat_operator.val();
         for (j, &src) in sources.iter().enumerate() {

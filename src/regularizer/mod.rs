@@ -179,10 +179,7 @@ impl PreparedShape {
     /// source, solved by the heat method in one block for the sources not kept from earlier
     /// calls (see [`PreparedShape::KEPT_COLUMNS`]).
     pub fn distance_columns(&self, sources: &[usize]) -> Result<Vec<Arc<[f64]>>, Error> {
-        self.columns.get_or_solve(sources, |missing| {
-            let f = self.heat.distances_from_many(missing)?;
-            Ok((0..missing.len()).map(|j| f.col(j).iter().copied().collect()).collect())
-        })
+        self.columns.get_or_solve(sources, |missing| Ok(self.heat.distance_columns(missing)?))
     }
 
     /// Heat-method columns solved, and served from the kept ones, since the shape was prepared.
