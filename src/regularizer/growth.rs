@@ -152,6 +152,10 @@ fn grow_rounds(
     let mut map = start;
     let n_keep = ((s as f64 * p.keep).ceil() as usize).clamp(3, s);
     let mut used = 0;
+    // Row-major tables, rewritten whole every round (allocated once: fresh pages fault):
+    // test distances and weights (n_t × k), reference distances (n_r × k).
+    let (mut a, mut w, mut b) =
+        (vec![0f32; n_t * n_keep], vec![0f32; n_t * n_keep], vec![0f32; n_r * n_keep]);
     for round in 0..p.rounds {
         let targets: Vec<usize> = samples.iter().map(|&v| map[v]).collect();
         let mut missing: Vec<usize> = targets.iter().copied().filter(|t| !ref_cols.contains_key(t)).collect();
@@ -183,9 +187,7 @@ fn grow_rounds(
         consistency.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let kept: Vec<usize> = consistency[..n_keep].iter().map(|c| c.1).collect();
         let k = kept.len();
-        // Row-major tables: test distances and weights (n_t × k), reference distances (n_r × k).
-        let mut a = vec![0f32; n_t * k];
-        let mut w = vec![0f32; n_t * k];
+        debug_assert_eq!(k, n_keep);
         for (j, &i) in kept.iter().enumerate() {
             let col = a_col(i);
             for v in 0..n_t {
@@ -195,7 +197,6 @@ fn grow_rounds(
                 w[v * k + j] = (local * trust(d, v, samples[i])) as f32;
             }
         }
-        let mut b = vec![0f32; n_r * k];
         for (j, &i) in kept.iter().enumerate() {
             let col = &ref_cols[&targets[i]];
             for r in 0..n_r {
