@@ -196,8 +196,6 @@ pub struct HeatMethodSolver {
     components: Vec<usize>,
     /// Position of each vertex in the solver's (fill-reducing) order.
     position: Vec<usize>,
-    /// The work buffers of the last call, reused by the next (see [`Work`]).
-    spare: std::sync::Mutex<Option<Work>>,
     time: f64,
     boundary: HeatBoundary,
     heat_neumann: Cholesky,
@@ -320,16 +318,15 @@ fn in_order<T: Copy + Default>(values: &[T], position: &[usize]) -> Vec<T> {
     out
 }
 
-/// The work buffers of one batch of sources (`n × b` values each, the solver's order): the
-/// heat, then in place the Poisson right-hand side and the distances; on meshes with boundary
-/// also the interior right-hand side and the Dirichlet heat. Fresh pages cost a fault each on
-/// first touch, so a solver keeps the last call's buffers for the next: a scan's few calls,
-/// and a reference's many over a daemon's life, reuse one set.
+/// The work buffers of a call (`n × b` values each, `b` ≤ [`BATCH_COLUMNS`], the solver's
+/// order), reused by each of its batches: the heat, then in place the Poisson right-hand side
+/// and the distances; on meshes with boundary also the interior right-hand side of the
+/// Dirichlet heat. (Keeping them in the solver between calls as well saved no time and cost a
+/// 52K-vertex match 170 MB of peak memory.)
 #[derive(Default)]
 struct Work {
     heat: Vec<f64>,
     interior: Vec<f64>,
-    dirichlet: Vec<f64>,
 }
 
 /// `buf` as `len` zeros: rewritten in place where it has room, else fresh [`written_zeros`].
@@ -509,7 +506,6 @@ impl HeatMethodSolver {
             face_operators,
             components: in_order(&components, &position),
             position,
-            spare: Default::default(),
             time,
             boundary: params.boundary,
             heat_neumann,
@@ -614,14 +610,11 @@ impl HeatMethodSolver {
     fn solve_in_batches(&self, sources: &[usize], mut emit: impl FnMut(usize, &[f64])) {
         let n = self.n_vertices;
         let rows: Vec<usize> = sources.iter().map(|&v| self.position[v]).collect();
-        // A poisoned lock only means another call panicked; the buffers are plain numbers.
-        let spare = || self.spare.lock().unwrap_or_else(|e| e.into_inner());
-        let mut work = spare().take().unwrap_or_default();
+        let mut work = Work::default();
         for (b, batch) in rows.chunks(BATCH_COLUMNS).enumerate() {
             self.solve_batch(batch, &mut work);
             emit(b * BATCH_COLUMNS, &work.heat[..n * batch.len()]);
         }
-        *spare() = Some(work);
     }
 
     /// The whole pipeline for the sources at `rows` (positions in the solver's order), into
@@ -640,13 +633,8 @@ impl HeatMethodSolver {
             self.heat_neumann.solve_block(heat, n);
         }
         if let Some(dir) = &self.dirichlet {
-            let dirichlet_heat = self.dirichlet_heat(dir, sources, &mut work.interior, &mut work.dirichlet);
-            if use_neumann {
-                // Average
-                heat.par_iter_mut().zip(dirichlet_heat.par_iter()).for_each(|(a, &b)| *a = 0.5 * (*a + b));
-            } else {
-                heat.copy_from_slice(dirichlet_heat);
-            }
+            // Average: the mean of the Neumann heat already in `heat` and the Dirichlet one
+            self.dirichlet_heat(dir, sources, &mut work.interior, heat, use_neumann);
         }
 
         // 2. normalised gradient, 3. divergence (right-hand side of L φ = −div X), in groups of
@@ -695,13 +683,15 @@ impl HeatMethodSolver {
     }
 
     /// Heat step with u = δ on the boundary and `(M + tL)_II u_I = δ_I − (M + tL)_IB δ_B`.
-    fn dirichlet_heat<'w>(
+    /// Written into `heat` (`n × sources`), or averaged with what it holds when `average`.
+    fn dirichlet_heat(
         &self,
         dir: &DirichletSystem,
         sources: &[usize],
         interior: &mut Vec<f64>,
-        out: &'w mut Vec<f64>,
-    ) -> &'w [f64] {
+        heat: &mut [f64],
+        average: bool,
+    ) {
         let n = self.n_vertices;
         let ni = dir.interior.len();
         let interior_rhs = zeroed(interior, ni * sources.len());
@@ -725,17 +715,21 @@ impl HeatMethodSolver {
         if let Some(factor) = &dir.factor {
             factor.solve_block(interior_rhs, ni);
         }
-        let heat = zeroed(out, n * sources.len());
-        for (j, &src) in sources.iter().enumerate() {
-            let col = &mut heat[j * n..(j + 1) * n];
-            if dir.interior_index[src] == usize::MAX {
-                col[src] = self.source_heat;
+        let interior_rhs = &*interior_rhs;
+        heat.par_chunks_mut(n).zip(sources.par_iter()).enumerate().for_each(|(j, (col, &src))| {
+            for (v, h) in col.iter_mut().enumerate() {
+                let k = dir.interior_index[v];
+                // on the boundary: zero, but at a source there
+                let d = if k != usize::MAX {
+                    interior_rhs[j * ni + k]
+                } else if v == src {
+                    self.source_heat
+                } else {
+                    0.0
+                };
+                *h = if average { 0.5 * (*h + d) } else { d };
             }
-            for (k, &v) in dir.interior.iter().enumerate() {
-                col[v] = interior_rhs[j * ni + k];
-            }
-        }
-        heat
+        });
     }
 }
 
@@ -843,7 +837,7 @@ mod tests {
     #[test]
     fn batched_sources_match_one_at_a_time_in_vertex_order() {
         // More sources than one batch, on an open mesh (the Average boundary condition: two
-        // heat solves per batch), asked twice so the second call runs on the kept buffers. Each
+        // heat solves per batch), through both entry points. Each
         // column must be the distance from its own source in vertex order (the solver works in
         // a fill-reducing order inside): equal to a one-source solve up to round-off, and 0 at
         // the source.
@@ -863,7 +857,11 @@ mod tests {
                     (first[j][v] - single[v]).abs() <= 1e-9 * (1.0 + single[v]),
                     "source {src}, vertex {v}"
                 );
-                assert_eq!(first[j][v].to_bits(), again[(v, j)].to_bits(), "kept buffers change nothing");
+                assert_eq!(
+                    first[j][v].to_bits(),
+                    again[(v, j)].to_bits(),
+                    "both entry points give the same bits"
+                );
             }
             // Euclidean distance on a flat plane is the geodesic one (the heat method is off by
             // up to ~12 % next to the boundary; a column in the wrong order is off by far more)
