@@ -309,8 +309,8 @@ const BATCH_COLUMNS: usize = 128;
 /// Columns processed side by side in the gradient and divergence step.
 const COLUMN_GROUP: usize = 8;
 
-/// `values` rearranged into the order `position` (value of row `i` at `position[i]`).
-fn in_order<T: Copy + Default>(values: &[T], position: &[usize]) -> Vec<T> {
+/// Vertex-indexed `values` in the solver's order (the value of vertex `v` at `position[v]`).
+fn in_solver_order<T: Copy + Default>(values: &[T], position: &[usize]) -> Vec<T> {
     let mut out = vec![T::default(); values.len()];
     for (&p, &x) in position.iter().zip(values) {
         out[p] = x;
@@ -486,7 +486,7 @@ impl HeatMethodSolver {
         let (heat_neumann, poisson) = (heat_neumann?, poisson?);
 
         let edges = edges_with_face_counts(mesh);
-        let on_boundary = in_order(&vertex_on_boundary(mesh, &edges), &position);
+        let on_boundary = in_solver_order(&vertex_on_boundary(mesh, &edges), &position);
         let dirichlet = if params.boundary != HeatBoundary::Neumann && on_boundary.iter().any(|&b| b) {
             Some(Self::dirichlet_system(&heat_op, &on_boundary)?)
         } else {
@@ -504,7 +504,7 @@ impl HeatMethodSolver {
             n_vertices: n,
             faces: mesh.faces.iter().map(|f| f.map(|v| position[v])).collect(),
             face_operators,
-            components: in_order(&components, &position),
+            components: in_solver_order(&components, &position),
             position,
             time,
             boundary: params.boundary,
@@ -565,7 +565,7 @@ impl HeatMethodSolver {
     pub fn distances_from(&self, source: usize) -> Result<Vec<f64>, GeodesicError> {
         check_sources(&[source], self.n_vertices)?;
         let mut out = Vec::new();
-        self.solve_in_batches(&[source], |_, col| out = self.position.iter().map(|&p| col[p]).collect());
+        self.solve_in_batches(&[source], |_, col| out = self.in_vertex_order(col).collect());
         Ok(out)
     }
 
@@ -578,8 +578,8 @@ impl HeatMethodSolver {
         let mut out = Mat::zeros(n, sources.len());
         self.solve_in_batches(sources, |first, batch| {
             for (j, col) in batch.chunks(n).enumerate() {
-                for (x, &p) in out.col_mut(first + j).iter_mut().zip(&self.position) {
-                    *x = col[p];
+                for (x, d) in out.col_mut(first + j).iter_mut().zip(self.in_vertex_order(col)) {
+                    *x = d;
                 }
             }
         });
@@ -596,11 +596,14 @@ impl HeatMethodSolver {
         }
         let mut out = Vec::with_capacity(sources.len());
         self.solve_in_batches(sources, |_, batch| {
-            out.par_extend(
-                batch.par_chunks(n).map(|col| self.position.iter().map(|&p| col[p]).collect::<Arc<[f64]>>()),
-            )
+            out.par_extend(batch.par_chunks(n).map(|col| self.in_vertex_order(col).collect::<Arc<[f64]>>()))
         });
         Ok(out)
+    }
+
+    /// A column of the solver's order, vertex by vertex.
+    fn in_vertex_order<'a>(&'a self, col: &'a [f64]) -> impl Iterator<Item = f64> + 'a {
+        self.position.iter().map(move |&p| col[p])
     }
 
     /// Solves `sources` (already checked) in batches of at most [`BATCH_COLUMNS`] and hands
