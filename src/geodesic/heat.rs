@@ -620,11 +620,10 @@ impl HeatMethodSolver {
         }
     }
 
-    /// The whole pipeline for the sources at `rows` (positions in the solver's order), into
-    /// `heat` (resized to `n × rows.len()`, column-major, the solver's order).
-    fn solve_batch(&self, rows: &[usize], work: &mut Work) {
+    /// The whole pipeline for `sources` (positions in the solver's order), into `work.heat`
+    /// (resized to `n × sources.len()`, column-major, the solver's order).
+    fn solve_batch(&self, sources: &[usize], work: &mut Work) {
         let n = self.n_vertices;
-        let sources = rows;
         let heat = zeroed(&mut work.heat, n * sources.len());
 
         // 1. heat step
@@ -636,7 +635,7 @@ impl HeatMethodSolver {
             self.heat_neumann.solve_block(heat, n);
         }
         if let Some(dir) = &self.dirichlet {
-            // Average: the mean of the Neumann heat already in `heat` and the Dirichlet one
+            // Dirichlet alone, or (Average) its mean with the Neumann heat already in `heat`
             self.dirichlet_heat(dir, sources, &mut work.interior, heat, use_neumann);
         }
 
@@ -840,10 +839,9 @@ mod tests {
     #[test]
     fn batched_sources_match_one_at_a_time_in_vertex_order() {
         // More sources than one batch, on an open mesh (the Average boundary condition: two
-        // heat solves per batch), through both entry points. Each
-        // column must be the distance from its own source in vertex order (the solver works in
-        // a fill-reducing order inside): equal to a one-source solve up to round-off, and 0 at
-        // the source.
+        // heat solves per batch), through both entry points. Each column must be the distance
+        // from its own source in vertex order (the solver works in a fill-reducing order
+        // inside): equal to a one-source solve up to round-off, and 0 at the source.
         let m = crate::synth::grid_plane(24, 20, 2.3, 1.9);
         let solver = HeatMethodSolver::new(&m, HeatParams::default()).unwrap();
         assert!(solver.dirichlet.is_some(), "an open mesh takes the Dirichlet path too");
