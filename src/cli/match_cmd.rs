@@ -163,10 +163,10 @@ fn write_colored(path: &Path, mesh: &Mesh, colors: &[[u8; 3]]) -> Result<()> {
 /// `match` is one short-lived process: it keeps what it frees for its own later allocations.
 /// By default glibc serves large blocks from mappings of their own, unmapped when freed, and
 /// trims the heap, so each stage's buffers are fresh pages again, each zeroed by the kernel on
-/// first touch (on this VM ~2.4 µs a page): a 60K-vertex match took ~580K page faults. With
-/// every block on the heap and no trimming: ~270K faults, and ~1.5 CPU-s and ~1 s of wall
-/// time less (three alternated pairs, 8.6 / 8.7 / 7.7 s → 7.6 / 7.6 / 6.7 s under perf),
-/// peak RSS 1.08 → 1.10 GB. The daemon, which must give memory back between scans, keeps
+/// first touch (on this VM ~2.4 µs a page): a 60K-vertex match took ~570K page faults. With
+/// every block on the heap and no trimming: ~273K (the first touches of its 1.1 GB peak);
+/// three alternated pairs under `perf stat`: 12.0 / 10.7 / 11.0 → 10.2 / 10.6 / 10.3 CPU-s,
+/// 7.5 / 6.8 / 7.0 → 6.4 / 6.6 / 6.4 s, the same map; peak RSS 1.08 → 1.10 GB. The daemon, which must give memory back between scans, keeps
 /// its own settings (`run::long_running_allocator`).
 fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
