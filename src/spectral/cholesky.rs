@@ -8,7 +8,7 @@ use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, SymbolicCholesky, SymmetricOrdering,
 };
-use faer::sparse::linalg::SupernodalThreshold;
+use faer::sparse::linalg::{amd, SupernodalThreshold};
 use faer::sparse::{SparseColMat, Triplet};
 use faer::{Par, Side};
 
@@ -37,14 +37,23 @@ fn symbolic_with(
         .map_err(|e| format!("symbolic analysis: {e:?}"))
 }
 
-/// The AMD fill-reducing order of `a`'s pattern (the one [`supernodal_symbolic`] uses), as
-/// the position of each row in it.
+/// The AMD fill-reducing order of `a`'s pattern, as the position of each row in it: the order
+/// [`supernodal_symbolic`] would use (faer's AMD, its default control, on the same pattern),
+/// without the symbolic factorisation around it.
 pub(crate) fn fill_reducing_positions(a: &SparseColMat<usize, f64>) -> Result<Vec<usize>, String> {
-    let symbolic = supernodal_symbolic(a)?;
-    Ok(match symbolic.perm() {
-        Some(perm) => perm.arrays().1.to_vec(),
-        None => (0..a.nrows()).collect(),
-    })
+    let n = a.nrows();
+    let (mut order, mut position) = (vec![0usize; n], vec![0usize; n]);
+    let mut mem = MemBuffer::try_new(amd::order_maybe_unsorted_scratch::<usize>(n, a.compute_nnz()))
+        .map_err(|e| format!("scratch memory: {e:?}"))?;
+    amd::order_maybe_unsorted(
+        &mut order,
+        &mut position,
+        a.symbolic(),
+        CholeskySymbolicParams::default().amd_params,
+        MemStack::new(&mut mem),
+    )
+    .map_err(|e| format!("fill-reducing order: {e:?}"))?;
+    Ok(position)
 }
 
 /// `P A Pᵀ` for the order `position` (row `i` of `a` becomes row `position[i]`).
@@ -85,4 +94,34 @@ pub(crate) fn numeric_llt(
         )
         .map_err(|e| format!("{e:?}"))?;
     Ok(values)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fill_reducing_positions_are_the_symbolic_analysis_order() {
+        // The Laplacian-like pattern of a 30 × 20 grid: AMD reorders it.
+        let (w, h) = (30, 20);
+        let id = |x: usize, y: usize| y * w + x;
+        let mut t = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                t.push(Triplet::new(id(x, y), id(x, y), 4.0));
+                for (nx, ny) in [(x + 1, y), (x, y + 1)] {
+                    if nx < w && ny < h {
+                        t.push(Triplet::new(id(x, y), id(nx, ny), -1.0));
+                        t.push(Triplet::new(id(nx, ny), id(x, y), -1.0));
+                    }
+                }
+            }
+        }
+        let a = SparseColMat::try_new_from_triplets(w * h, w * h, &t).unwrap();
+        let position = fill_reducing_positions(&a).unwrap();
+        let symbolic = supernodal_symbolic(&a).unwrap();
+        let expected = symbolic.perm().expect("AMD gives a permutation").arrays().1.to_vec();
+        assert_ne!(position, (0..w * h).collect::<Vec<_>>(), "a real reordering");
+        assert_eq!(position, expected);
+    }
 }
