@@ -8,8 +8,9 @@
 //!   [`surface_operator`] picks it for meshes with non-manifold edges, the cotangent Laplacian
 //!   otherwise, and is what the solver (and the heat method) use;
 //! - [`Spectrum`]: the first K eigenpairs of `L φ = λ M φ`;
-//! - [`compute_spectrum`] / [`LaplaceBeltramiSolver`]: the sparse eigensolver (shift-inverted
-//!   block Lanczos with exact null space and verification, see [`solver`]), with
+//! - [`compute_spectrum`] / [`LaplaceBeltramiSolver`]: the sparse eigensolver (block Lanczos
+//!   shift-inverted at an interior shift, with exact null space and verification, see
+//!   [`solver`]), with
 //!   [`SpectrumParams`]; [`dense_spectrum`]: the exact dense reference for small meshes;
 //! - [`SpectrumCache`]: spectra stored on disk, keyed by mesh content and parameters.
 //!
