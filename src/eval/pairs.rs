@@ -138,7 +138,7 @@ pub struct PairErrors {
     /// Flips-allowed errors, when a symmetry map was given.
     pub symmetric: Option<Vec<f64>>,
     /// The vertex of `B` each corresponded point was mapped to (the true one is
-    /// [`ProtocolShape::truth`](super::ProtocolShape::truth)`[k]` of `B`), for measuring the
+    /// [`ProtocolShape::truth`](super::protocol::ProtocolShape::truth)`[k]` of `B`), for measuring the
     /// errors with other distances.
     #[serde(default)]
     pub images: Vec<usize>,

@@ -7,7 +7,7 @@
 //!   ground-truth table `truth[k]`, the vertex `mirrored[k]` at the mirror image of `truth[k]`.
 //!   [`label_symmetry_from_mirrored_truth`] turns that into a map of the labels.
 //! - **Sparse symmetric feature points** (TOSCA/SCAPE `CLASS.sym.info`): a few pairs of vertices
-//!   that mirror each other, and vertices on the symmetry plane. [`derive_symmetry`] extends them
+//!   that mirror each other, and vertices on the symmetry plane. [`SymmetrySolver::derive`] extends them
 //!   to a dense self-map of one shape with a self functional map (Ovsjanikov et al. 2012):
 //!   the map `C` (pulling functions back along the symmetry `S`, as in [`crate::fmap`]) is
 //!   fitted to
@@ -21,7 +21,7 @@
 //!
 //!   then refined by ZoomOut (Melzi et al. 2019) on a farthest-point subsample of the vertices
 //!   and converted to a vertex map by nearest neighbours in the spectral embedding.
-//!   [`validate_symmetry`] measures its accuracy honestly: cross-validation over the feature
+//!   [`SymmetrySolver::validate`] measures its accuracy honestly: cross-validation over the feature
 //!   pairs, each fold fitted without the pairs it scores.
 //!
 //! Conventions: the spectrum is the unit-area one of [`crate::spectral`] (M-orthonormal

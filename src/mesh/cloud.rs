@@ -37,7 +37,7 @@ use super::{cross, dot, norm, sub, Mesh, MeshError};
 ///
 /// Two departures from `robust_laplacian` keep 30 usable on shapes of a few thousand points
 /// with thin parts (legs, tails, fingers), where 30 neighbours reach across to the other side
-/// of a limb: the normal comes from the nearest [`PCA_NEIGHBOURS`] only, and neighbours whose
+/// of a limb: the normal comes from the nearest `PCA_NEIGHBOURS` (10) only, and neighbours whose
 /// oriented normal faces away are left out of the fan. Measured on the 2,000-vertex synthetic
 /// creature (held-out pose, forest trained on meshes), within 0.05: 59 % with plain k = 30
 /// (λ₁ fell to 0.84 of the mesh's: the fans bridged the legs), 98 % with plain k = 12 (but on

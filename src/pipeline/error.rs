@@ -1,5 +1,5 @@
 //! The pipeline layer's error type. Job failures are not errors of the pipeline: they travel to
-//! the sinks as [`super::Failure`] values. An [`Error`] is what stops an actor, a start-up or a
+//! the sinks as [`super::Failure`] values. An [`enum@Error`] is what stops an actor, a start-up or a
 //! build: a file that cannot be written, an invalid pipeline file, a model that cannot be loaded.
 
 use std::path::PathBuf;

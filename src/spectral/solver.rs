@@ -12,17 +12,21 @@
 //!    exactly (eigenvalue exactly `0`, eigenvector constant and positive on its component,
 //!    ordered by the smallest vertex index of the component) and *locked*, so any number of
 //!    components is handled, not only as many as the block size.
-//! 3. **Shift-invert block Lanczos** ([`super::lanczos`]) on the rest: with `D = M^{1/2}` and the
-//!    symmetric `L̂ = D⁻¹ L D⁻¹`, the operator `(L̂ − σ I)⁻¹` (σ < 0, so the matrix is SPD and
-//!    factorised once by a supernodal sparse Cholesky) has the smallest `λ` as its largest
-//!    eigenvalues `θ = 1/(λ − σ)`. Its eigenvectors `y` give `φ = D⁻¹ y`. Eigenvalues are then
-//!    refined as Rayleigh quotients `λ = φᵀ L φ` (tiny negative round-off is clamped to `0`).
+//! 3. **Shift-invert block Lanczos** (the `lanczos` module) on the rest: with `D = M^{1/2}` and
+//!    the symmetric `L̂ = D⁻¹ L D⁻¹`, the operator `(L̂ − σ I)⁻¹`, factorised once by a supernodal
+//!    sparse factorisation, has the `λ` nearest to σ as its eigenvalues `θ = 1/(λ − σ)` largest
+//!    in magnitude. σ is an *interior* shift between the wanted eigenvalues where that pays and
+//!    can be trusted (`LDLᵀ`, indefinite; see `factorize_interior`: fewer Lanczos vectors to
+//!    convergence), else [`SpectrumParams::shift`] below the spectrum (`LLᵀ`, SPD). Its
+//!    eigenvectors `y` give `φ = D⁻¹ y`. Eigenvalues are then refined as Rayleigh quotients
+//!    `λ = φᵀ L φ` (tiny negative round-off is clamped to `0`).
 //! 4. **Verification** (on by default). The relative residuals
 //!    `‖L φ − λ M φ‖_{M⁻¹} / max(λ, 1)` are computed for every pair; and the number of
 //!    eigenvalues below `τ = λ_K (1 − 10⁻⁴)` is counted independently with Sylvester's law of
 //!    inertia (negative pivots of an `LDLᵀ` factorisation of `L̂ − τ I`). A pair whose residual
 //!    is too large, or an eigenvalue below `τ` that the iteration missed, is reported as an
-//!    error instead of silently returning wrong pairs.
+//!    error instead of silently returning wrong pairs (after an interior shift, the problem is
+//!    first solved again from below the spectrum).
 //!
 //! Small problems (`n ≤ dense_threshold`, or K too close to `n` for a Krylov basis) are solved
 //! exactly with a dense eigendecomposition instead, with the same conventions.
