@@ -50,6 +50,7 @@ use faer::sparse::{SparseColMat, Triplet};
 use faer::{Accum, Conj, Mat, MatMut, MatRef, Par, Side};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 
 use super::cholesky::{numeric_llt, supernodal_symbolic};
 use super::lanczos::{BlockLanczos, LanczosFailure};
@@ -260,7 +261,8 @@ pub struct LaplaceBeltramiSolver {
 
 #[derive(Debug)]
 struct Factorization {
-    symbolic: SymbolicCholesky<usize>,
+    /// Shared with the fallback factorisation after a wrong interior shift (same pattern).
+    symbolic: Arc<SymbolicCholesky<usize>>,
     values: Vec<f64>,
     /// The shift σ of the factorised `L̂ − σ I`.
     shift: f64,
@@ -428,7 +430,8 @@ impl LaplaceBeltramiSolver {
                 if factor.is_some_and(|f| f.indefinite) =>
             {
                 tracing::debug!(error = %e, "interior shift failed; solving again from below the spectrum");
-                let fallback = self.factorize_shifted(None)?;
+                let symbolic = factor.map(|f| f.symbolic.clone());
+                let fallback = self.factorize_shifted(symbolic)?;
                 self.solve_using(Some(&fallback))
             }
             result => result,
@@ -706,12 +709,12 @@ impl LaplaceBeltramiSolver {
     /// when already done.
     fn factorize_shifted(
         &self,
-        symbolic: Option<SymbolicCholesky<usize>>,
+        symbolic: Option<Arc<SymbolicCholesky<usize>>>,
     ) -> Result<Factorization, SpectralError> {
         let a = self.shifted(self.params.shift);
         let symbolic = match symbolic {
             Some(s) => s,
-            None => supernodal_symbolic(&a).map_err(SpectralError::Factorization)?,
+            None => Arc::new(supernodal_symbolic(&a).map_err(SpectralError::Factorization)?),
         };
         let values = numeric_llt(&symbolic, &a).map_err(|e| {
             SpectralError::Factorization(format!(
@@ -738,7 +741,7 @@ impl LaplaceBeltramiSolver {
         let k = self.params.k as f64;
         let mut sigma = fraction * 4.0 * std::f64::consts::PI * k;
         let a = self.shifted(sigma);
-        let symbolic = supernodal_symbolic(&a).map_err(SpectralError::Factorization)?;
+        let symbolic = Arc::new(supernodal_symbolic(&a).map_err(SpectralError::Factorization)?);
         let mut a = Some(a);
         for _ in 0..2 {
             let shifted = a.take().unwrap_or_else(|| self.shifted(sigma));
