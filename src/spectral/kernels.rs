@@ -14,6 +14,21 @@ use rayon::prelude::*;
 /// Rows per chunk: a chunk of a block of 8 columns (128 KiB) stays in L2.
 const CHUNK: usize = 2048;
 
+/// Multiply-adds below which a kernel runs on the calling thread: waking a sleeping worker costs
+/// more than such a step saves (a 5K-vertex spectrum runs ~500 parallel steps, most of them
+/// small: the locked vectors' projections, the block QR's Gram products and triangular solves).
+const PARALLEL_MIN_WORK: usize = 1 << 20;
+
+/// `with_min_len` for a parallel loop over `work` multiply-adds: the whole loop as one task
+/// (on the calling thread, in the same order, so the same bits) when the work is small.
+pub(crate) fn min_len_for(work: usize) -> usize {
+    if work < PARALLEL_MIN_WORK {
+        usize::MAX
+    } else {
+        1
+    }
+}
+
 /// `c = basisᵀ w` (`c` is `m × b`).
 pub(crate) fn tn_product(basis: MatRef<'_, f64>, w: MatRef<'_, f64>, c: MatMut<'_, f64>) {
     match w.ncols() {
@@ -105,15 +120,17 @@ fn tn_fixed<const B: usize>(basis: MatRef<'_, f64>, w: MatRef<'_, f64>, mut c: M
     let mut out = vec![[0.0f64; B]; m];
     // Each thread owns a range of basis columns and sweeps all row chunks for them.
     let per = m.div_ceil(rayon::current_num_threads().max(1) * 2).max(4);
-    out.par_chunks_mut(per).zip(cols.par_chunks(per)).for_each(|(out, cols)| {
-        let mut start = 0;
-        while start < n {
-            let end = (start + CHUNK).min(n);
-            let wr: [&[f64]; B] = std::array::from_fn(|j| &wc[j][start..end]);
-            accumulate_dots::<B>(out, cols, start, end, &wr);
-            start = end;
-        }
-    });
+    out.par_chunks_mut(per).zip(cols.par_chunks(per)).with_min_len(min_len_for(n * m * B)).for_each(
+        |(out, cols)| {
+            let mut start = 0;
+            while start < n {
+                let end = (start + CHUNK).min(n);
+                let wr: [&[f64]; B] = std::array::from_fn(|j| &wc[j][start..end]);
+                accumulate_dots::<B>(out, cols, start, end, &wr);
+                start = end;
+            }
+        },
+    );
     for (i, o) in out.iter().enumerate() {
         for j in 0..B {
             c[(i, j)] = o[j];
@@ -256,7 +273,11 @@ fn nn_fixed<const B: usize>(basis: MatRef<'_, f64>, c: MatRef<'_, f64>, w: MatMu
             chunks[q].push(part);
         }
     }
-    chunks.par_iter_mut().enumerate().for_each(|(q, parts)| subtract_chunk::<B>(&cols, &h, q * CHUNK, parts));
+    chunks
+        .par_iter_mut()
+        .enumerate()
+        .with_min_len(min_len_for(n * m * B))
+        .for_each(|(q, parts)| subtract_chunk::<B>(&cols, &h, q * CHUNK, parts));
 }
 
 /// `parts[j][r] -= Σ_i basis_i[start + r] · h[i][j]` for the rows of one chunk.

@@ -515,7 +515,8 @@ fn solve_right_upper(w: MatMut<'_, f64>, r: MatRef<'_, f64>) {
     const ROWS: usize = 2048;
     let b = w.ncols();
     let inv_diag: Vec<f64> = (0..b).map(|j| 1.0 / r[(j, j)]).collect();
-    w.par_row_chunks_mut(ROWS).for_each(|mut chunk| {
+    let work = w.nrows() * b * b / 2;
+    w.par_row_chunks_mut(ROWS).with_min_len(super::kernels::min_len_for(work)).for_each(|mut chunk| {
         for j in 0..b {
             for i in 0..j {
                 let c = r[(i, j)];
