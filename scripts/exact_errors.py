@@ -13,36 +13,18 @@ Meshes are read from CLASS_DIR/NAME.off or NAME.off.gz (the eval's shape names).
 
 import argparse
 import collections
-import gzip
 import os
 import sys
 
 import numpy as np
 import pygeodesic.geodesic as geodesic
 
+import off_io
+
 
 def read_off(path):
-    opener = gzip.open if path.endswith(".gz") else open
-    with opener(path, "rt") as f:
-        tokens = []
-        for line in f:
-            line = line.split("#", 1)[0].strip()
-            if line:
-                tokens.extend(line.split())
-    if not tokens or not tokens[0].upper().endswith("OFF"):
-        sys.exit(f"{path}: not an OFF file")
-    pos = 1
-    nv, nf = int(tokens[pos]), int(tokens[pos + 1])
-    pos += 3
-    verts = np.array(tokens[pos : pos + 3 * nv], dtype=float).reshape(nv, 3)
-    pos += 3 * nv
-    faces = []
-    for _ in range(nf):
-        n = int(tokens[pos])
-        idx = [int(t) for t in tokens[pos + 1 : pos + 1 + n]]
-        pos += 1 + n
-        faces.extend([idx[0], idx[i], idx[i + 1]] for i in range(1, n - 1))
-    return verts, np.array(faces, dtype=np.int32)
+    v, f = off_io.read_off(path)
+    return np.array(v, dtype=float).reshape(-1, 3), np.array(off_io.triangles(f), dtype=np.int32)
 
 
 def mesh_path(class_dir, name):

@@ -15,23 +15,12 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+import off_io
+
 
 def read_off(path):
-    with open(path) as f:
-        tokens = [t for line in f for t in line.split("#", 1)[0].split()]
-    assert tokens[0].upper().endswith("OFF"), f"{path}: not an OFF file"
-    nv, nf = int(tokens[1]), int(tokens[2])
-    pos = 4
-    v = np.array(tokens[pos:pos + 3 * nv], dtype=np.float64).reshape(nv, 3)
-    pos += 3 * nv
-    faces = []
-    for _ in range(nf):
-        n = int(tokens[pos])
-        idx = [int(t) for t in tokens[pos + 1:pos + 1 + n]]
-        pos += 1 + n
-        for j in range(1, n - 1):
-            faces.append((idx[0], idx[j], idx[j + 1]))
-    return v, np.array(faces, dtype=np.int64)
+    v, f = off_io.read_off(path)
+    return np.array(v, dtype=np.float64).reshape(-1, 3), np.array(off_io.triangles(f), dtype=np.int64)
 
 
 def cotan_laplacian_and_mass(v, f):

@@ -16,7 +16,6 @@ vertices. Meshes may be gzipped (`.off.gz`).
 Usage: pyfm_peer.py OUT [--csv OUT/peer/pyfm_results.csv]
 """
 import argparse
-import gzip
 import json
 import os
 import sys
@@ -24,22 +23,12 @@ import time
 
 import numpy as np
 
+import off_io
+
 
 def read_off(path):
-    opener = gzip.open if path.endswith(".gz") else open
-    with opener(path, "rt") as f:
-        tokens = []
-        header = f.readline().strip()
-        if not header.endswith("OFF"):
-            raise SystemExit(f"{path}: not an OFF file (header {header!r})")
-        for line in f:
-            line = line.split("#", 1)[0].strip()
-            if line:
-                tokens.append(line.split())
-    nv, nf = int(tokens[0][0]), int(tokens[0][1])
-    v = np.array([[float(x) for x in t[:3]] for t in tokens[1:1 + nv]])
-    f = np.array([[int(x) for x in t[1:4]] for t in tokens[1 + nv:1 + nv + nf]], dtype=np.int64)
-    return v, f
+    v, f = off_io.read_off(path)
+    return np.array(v, dtype=float).reshape(-1, 3), np.array(off_io.triangles(f), dtype=np.int64)
 
 
 def area(v, f):

@@ -15,25 +15,13 @@ import math
 import os
 import sys
 
+import off_io
+
 
 def read_off(path):
-    with open(path) as f:
-        words = [w for line in f for w in line.split("#")[0].split()]
-    if not words or words[0] != "OFF":
-        sys.exit(f"split-edges.py: {path}: not an OFF file")
-    nv, nf = int(words[1]), int(words[2])
-    pos = 4
-    verts = []
-    for _ in range(nv):
-        verts.append([float(w) for w in words[pos:pos + 3]])
-        pos += 3
-    faces = []
-    for _ in range(nf):
-        k = int(words[pos])
-        if k != 3:
-            sys.exit(f"split-edges.py: {path}: face with {k} vertices (triangles only)")
-        faces.append([int(w) for w in words[pos + 1:pos + 4]])
-        pos += 4
+    verts, faces = off_io.read_off(path)
+    if any(len(f) != 3 for f in faces):
+        sys.exit(f"split-edges.py: {path}: a face that is not a triangle (triangles only)")
     return verts, faces
 
 
