@@ -222,10 +222,19 @@ pub struct EvalArgs {
     /// in the pair's posterior (`PairParams::composed_weight`).
     #[arg(long, default_value_t = 0.5, value_name = "W")]
     pub pair_composed_weight: f64,
-    /// Kernel width (× √area) of the choice between the refined map and a coarse (20 → 100)
-    /// ZoomOut's by the forest's posterior (`regularizer::MapSelection`; 0: no choice).
+    /// Kernel width (× √area) of the choice, by the forest's posterior, between the refined map,
+    /// a coarse (20 → 100) ZoomOut's and the extrinsic step of the map before ZoomOut
+    /// (`regularizer::MapSelection`; 0: no choice).
     #[arg(long, default_value_t = 0.02, value_name = "S")]
     pub zoomout_select: f64,
+    /// In that choice, the third map replaces the chosen one only where the posterior supports
+    /// it more than M times as well (`MapSelection::margin`; 1: the plain maximum).
+    #[arg(long, default_value_t = 1.5, value_name = "M")]
+    pub zoomout_select_margin: f64,
+    /// Leave out the choice's third map, the extrinsic step of the map before ZoomOut
+    /// (`MapSelection::grown_extrinsic`).
+    #[arg(long)]
+    pub no_grown_extrinsic: bool,
     /// Extrinsic refinement after ZoomOut (`regularizer::refine_extrinsic`): rounds (0: off).
     #[arg(long, default_value_t = 3, value_name = "N")]
     pub extrinsic_rounds: usize,
@@ -255,6 +264,8 @@ impl EvalArgs {
             }),
             select: (self.zoomout_select > 0.0).then_some(shapeforest::regularizer::MapSelection {
                 sigma: self.zoomout_select,
+                margin: self.zoomout_select_margin,
+                grown_extrinsic: !self.no_grown_extrinsic,
                 ..Default::default()
             }),
             ..Default::default()

@@ -252,8 +252,9 @@ pub struct ZoomOutParams {
     /// The extrinsic refinement after ZoomOut ([`refine_extrinsic`]; `None`: off). Default on.
     #[serde(default)]
     pub extrinsic: Option<ExtrinsicParams>,
-    /// A second, coarse ZoomOut and the choice, region by region, between the refined map and
-    /// the coarse one ([`MapSelection`]; `None`: off). Default on.
+    /// A second, coarse ZoomOut, the extrinsic step of the unrefined map, and the choice,
+    /// region by region, among the refined map and those ([`MapSelection`]; `None`: off).
+    /// Default on.
     #[serde(default)]
     pub select: Option<MapSelection>,
     /// First and final basis sizes of the partial ZoomOut of an open part
@@ -302,21 +303,81 @@ impl Default for ZoomOutParams {
 /// ([`ZoomOutParams::k_start`]) keeps the grown map's precision but also its large errors (a
 /// limb left mirrored, a patch slid along the body), which a ZoomOut from few eigenpairs undoes
 /// at the price of precision elsewhere (on remeshed TOSCA cats, the best of the two per point
-/// would be 91.5 % within 0.05 where either alone is 83.8 or 89.1 %). So a coarse ZoomOut
-/// (`coarse`, with its own repair of mirrored parts) runs too, and every region takes, of the
-/// refined and the coarse map, the one whose images the forest's posterior supports best (not
-/// the grown map: it lands on the forest's candidates by construction) ([`select_by_posterior`], kernel width `sigma`).
+/// would be 91.5 % within 0.05 where either alone is 83.8 or 89.1 %). ZoomOut also assumes an
+/// isometry: where a pose stretches the body (a cat's hips and shoulders as it leaps), even the
+/// true map slides by 0.05–0.1 √area under it (from the true map, ZoomOut 100 → 200 leaves
+/// 90–91 % of remeshed cat pairs' points within 0.05, where the extrinsic step alone keeps
+/// 99 %, `examples/zoomout_oracle.rs`). So two more maps run: a coarse ZoomOut (`coarse`, with
+/// its own repair of mirrored parts) and, with `grown_extrinsic`, the extrinsic step applied to
+/// the map before ZoomOut (with the same repair). Region by region ([`select_by_posterior`],
+/// kernel width `sigma`), first the refined or the coarse map is chosen, whichever the forest's
+/// posterior supports best; then the third map's image replaces the chosen one where it lies
+/// within `reach` of it and is clearly better supported (by the factor `margin`). The third map
+/// only sharpens: far from the chosen image it would bring back what ZoomOut undid (a limb the
+/// forest mirrored on david), and at the kernel's resolution maps that agree within ~`sigma`
+/// score alike, so that a plain maximum would trade the refined map's precision for noise.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MapSelection {
     /// First and last basis size of the coarse ZoomOut. Default (20, 100).
     pub coarse: (usize, usize),
     /// Kernel width of the posterior's density (units of the reference's `√area`). Default 0.02.
     pub sigma: f64,
+    /// The extrinsic step ([`refine_extrinsic`]) of the map before ZoomOut as a third
+    /// candidate (when [`ZoomOutParams::extrinsic`] is on). Default on.
+    #[serde(default = "MapSelection::default_grown_extrinsic")]
+    pub grown_extrinsic: bool,
+    /// Another map replaces the refined one at a vertex only where its smoothed posterior
+    /// support is more than `margin` times the refined map's (≥ 1; 1: the plain maximum).
+    /// Default 1.5.
+    #[serde(default = "MapSelection::default_margin")]
+    pub margin: f64,
+    /// The third map's images farther than this (units of the reference's `√area`, Euclidean)
+    /// from the chosen map's are not candidates. Default 0.1.
+    #[serde(default = "MapSelection::default_reach")]
+    pub reach: f64,
+}
+
+impl MapSelection {
+    fn default_grown_extrinsic() -> bool {
+        true
+    }
+
+    fn default_margin() -> f64 {
+        1.5
+    }
+
+    fn default_reach() -> f64 {
+        0.1
+    }
+
+    /// Checks the settings, naming the broken rule.
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.sigma > 0.0 && self.sigma.is_finite()) {
+            return Err(format!("select sigma = {}: must be finite and > 0", self.sigma));
+        }
+        if !(self.margin >= 1.0 && self.margin.is_finite()) {
+            return Err(format!("select margin = {}: must be finite and ≥ 1", self.margin));
+        }
+        if !(self.reach >= 0.0 && self.reach.is_finite()) {
+            return Err(format!("select reach = {}: must be finite and ≥ 0", self.reach));
+        }
+        let (start, end) = self.coarse;
+        if start == 0 || end < start {
+            return Err(format!("select coarse = ({start}, {end}): needs 1 ≤ first ≤ last"));
+        }
+        Ok(())
+    }
 }
 
 impl Default for MapSelection {
     fn default() -> Self {
-        Self { coarse: (20, 100), sigma: 0.02 }
+        Self {
+            coarse: (20, 100),
+            sigma: 0.02,
+            grown_extrinsic: Self::default_grown_extrinsic(),
+            margin: Self::default_margin(),
+            reach: Self::default_reach(),
+        }
     }
 }
 
@@ -900,8 +961,9 @@ pub fn dense_map(
 
 /// Step 8, the refinement of `map` (test vertex → reference vertex) by `zoomout`: ZoomOut with
 /// its repair of mirrored parts (the partial ZoomOut for an open part of the reference), then
-/// the extrinsic step and the choice against a coarse ZoomOut by the forest's posterior
-/// (`prediction` read through `label_to_vertex`) as [`ZoomOutParams`] says. `None` when the
+/// the extrinsic step and the choice against a coarse ZoomOut and the extrinsic step of `map`
+/// itself by the forest's posterior (`prediction` read through `label_to_vertex`) as
+/// [`ZoomOutParams`] and [`MapSelection`] say. `None` when the
 /// ZoomOut's check kept `map`. This is what [`regularize`] does after anchor growth when
 /// [`RegularizerParams::zoomout`] is on; any other map of the shapes (e.g. one composed through
 /// a third shape) can be refined the same way.
@@ -957,16 +1019,44 @@ fn refine_with(
         refined = Some(refine_extrinsic(test, reference, r, e)?);
     }
     if let (Some(sel), Some(fine), false) = (&z.select, &refined, partial) {
+        sel.check().map_err(|reason| Error::InvalidParameter { name: "select", reason })?;
         let zc = ZoomOutParams { k_start: sel.coarse.0, k_final: sel.coarse.1, select: None, ..*z };
         let coarse = zoomed_and_repaired(test, reference, map, params.unflip, |m| {
             refine_zoomout(test, reference, m, &zc)
         })?;
-        if let Some(c) = coarse {
-            let rounds = unflip_rounds(test.mesh.n_vertices());
-            let maps: [&[usize]; 2] = [fine, &c];
-            refined =
-                Some(select_by_posterior(&test.mesh, &reference.mesh, posterior, &maps, sel.sigma, rounds));
-        }
+        let rounds = unflip_rounds(test.mesh.n_vertices());
+        let choose = |maps: &[&[usize]], margin: f64| {
+            select_by_posterior(&test.mesh, &reference.mesh, posterior, maps, sel.sigma, margin, rounds)
+        };
+        // Region by region, the refined or the coarse map, whichever the posterior supports best.
+        let base = match &coarse {
+            Some(c) => choose(&[fine, c], 1.0),
+            None => fine.clone(),
+        };
+        // The extrinsic step of `map` itself, with the same repair of mirrored parts, replaces
+        // that only where clearly better supported; it refines precision only: where it moves
+        // an image far from the chosen map's (a limb the forest has mirrored, which ZoomOut
+        // undid), the chosen image stays.
+        let grown = match (&z.extrinsic, sel.grown_extrinsic) {
+            (Some(e), true) => zoomed_and_repaired(test, reference, map, params.unflip, |m| {
+                refine_extrinsic(test, reference, m, e).map(Some)
+            })?,
+            _ => None,
+        };
+        refined = Some(match grown {
+            Some(mut g) => {
+                let r2 = (sel.reach * reference.sqrt_area()).powi(2);
+                let pos = &reference.mesh.vertices;
+                for (m, image) in g.iter_mut().enumerate() {
+                    let (a, b) = (pos[*image], pos[base[m]]);
+                    if (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2) > r2 {
+                        *image = base[m];
+                    }
+                }
+                choose(&[&base, &g], sel.margin)
+            }
+            None => base,
+        });
     }
     Ok(refined)
 }

@@ -148,15 +148,16 @@ pub fn refine_zoomout(
 /// where the forest's posterior is densest: each map's image scores
 /// `Σ_r p(r) exp(−|x_r − x_image|² / 2σ²)` over the vertex's candidates `r` (Euclidean, `σ` =
 /// `sigma` · √area of the reference), the scores are averaged over `rounds` passes of mesh
-/// neighbours (so that a region, not a vertex, chooses), and the best map's image is taken
-/// (the first map on ties).
+/// neighbours (so that a region, not a vertex, chooses), and the first map's image is kept
+/// unless another map scores more than `margin` times as much (then the best such map's; the
+/// earlier map on ties). `margin` = 1 takes the plain maximum.
 ///
 /// ```
 /// use shapeforest::{mesh::Mesh, regularizer::select_by_posterior};
 /// let m = Mesh::new(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2]]).unwrap();
 /// // Every vertex's only candidate is vertex 1: the second map, which lands there, wins.
 /// let candidates: Vec<usize> = vec![1, 1, 1];
-/// let chosen = select_by_posterior(&m, &m, candidates.as_slice(), &[&[0, 2, 2], &[1, 1, 1]], 0.1, 0);
+/// let chosen = select_by_posterior(&m, &m, candidates.as_slice(), &[&[0, 2, 2], &[1, 1, 1]], 0.1, 1.5, 0);
 /// assert_eq!(chosen, vec![1, 1, 1]);
 /// ```
 pub fn select_by_posterior<S: crate::fmap::SoftCorrespondence + ?Sized>(
@@ -165,6 +166,7 @@ pub fn select_by_posterior<S: crate::fmap::SoftCorrespondence + ?Sized>(
     posterior: &S,
     maps: &[&[usize]],
     sigma: f64,
+    margin: f64,
     rounds: usize,
 ) -> Vec<usize> {
     use rayon::prelude::*;
@@ -199,7 +201,14 @@ pub fn select_by_posterior<S: crate::fmap::SoftCorrespondence + ?Sized>(
         scores.into_iter().map(|s| super::flip::diffuse(&offsets, &neighbours, s, rounds)).collect();
     (0..n)
         .map(|m| {
-            let best = (0..maps.len()).fold(0, |b, i| if smoothed[i][m] > smoothed[b][m] { i } else { b });
+            let bar = margin * smoothed[0][m];
+            let best = (1..maps.len()).fold(0, |b, i| {
+                if smoothed[i][m] > bar && smoothed[i][m] > smoothed[b][m] {
+                    i
+                } else {
+                    b
+                }
+            });
             maps[best][m]
         })
         .collect()
