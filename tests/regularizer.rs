@@ -8,7 +8,8 @@ use shapeforest::{
     forest::{RandomForest, TrainingSet},
     geodesic::HeatParams,
     regularizer::{
-        dense_map, regularize, sparse_matches, AnchorGrowthParams, PreparedShape, RegularizerParams,
+        dense_map, refine_map, regularize, sparse_matches, AnchorGrowthParams, MapSelection, PreparedShape,
+        RegularizerParams, ZoomOutParams,
     },
     spectral::{compute_spectrum, SpectrumParams},
     synth::{creature_family, CreatureParams},
@@ -72,11 +73,11 @@ struct Case {
 }
 
 fn case(family_seed: u64, forest_seed: u64) -> Case {
-    let fam = creature_family(
-        &CreatureParams { target_vertices: 2000, seed: family_seed, ..Default::default() },
-        6,
-    )
-    .unwrap();
+    case_of(CreatureParams { target_vertices: 2000, seed: family_seed, ..Default::default() }, forest_seed)
+}
+
+fn case_of(creatures: CreatureParams, forest_seed: u64) -> Case {
+    let fam = creature_family(&creatures, 6).unwrap();
     let n = fam.template.n_vertices();
     let spectra: Vec<_> =
         fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &SpectrumParams::new(60)).unwrap())).collect();
@@ -162,4 +163,42 @@ fn a_mirrored_set_of_game_anchors_is_undone_by_the_reoriented_growth_run() {
     assert!(dense.reoriented, "the re-oriented run should win");
     assert!(dense.dense_orientation.unwrap() > 0.0);
     assert!(summary.within_005 > 0.85, "{summary:?}");
+}
+
+#[test]
+fn the_third_map_of_the_choice_sharpens_a_non_isometric_map_within_its_reach() {
+    // Bones scaled by up to e^±0.6: ZoomOut, which assumes an isometry, slides the map.
+    let creatures =
+        CreatureParams { target_vertices: 2000, seed: 7, non_isometric: 0.6, ..Default::default() };
+    let Case { n, prediction, test, reference, .. } = case_of(creatures, 3);
+    let params = RegularizerParams::default();
+    // The grown map (no refinement by default), refined with each setting of the choice.
+    let grown = regularize(&test, &reference, &prediction, None, &params).unwrap().map;
+    let refine = |select: MapSelection| {
+        let z = ZoomOutParams { select: Some(select), ..Default::default() };
+        refine_map(&test, &reference, &prediction, None, &grown, &z, &params).unwrap().expect("unchecked")
+    };
+    let two = refine(MapSelection { grown_extrinsic: false, ..Default::default() });
+    // A reach of 0 leaves the choice of two maps exactly as it is.
+    assert_eq!(refine(MapSelection { reach: 0.0, ..Default::default() }), two);
+    let three = refine(MapSelection::default());
+    let unbounded = refine(MapSelection { reach: 10.0, ..Default::default() });
+    let reach = MapSelection::default().reach * reference.sqrt_area();
+    let pos = &reference.mesh.vertices;
+    let moved = |map: &[usize]| -> Vec<f64> {
+        let d = |a: usize, b: usize| (0..3).map(|i| (pos[a][i] - pos[b][i]).powi(2)).sum::<f64>().sqrt();
+        map.iter().zip(&two).map(|(&a, &b)| d(a, b)).collect()
+    };
+    assert!(moved(&three).iter().all(|&d| d <= reach + 1e-12), "an image moved beyond the reach");
+    assert!(moved(&unbounded).iter().any(|&d| d > reach), "the reach bounds nothing here");
+    let evaluated: Vec<usize> = (0..n).step_by(3).collect();
+    let fields = reference.heat.distances_from_many(&evaluated).unwrap();
+    let area = reference.mesh.surface_area();
+    let strict = |map: &[usize]| {
+        ErrorSummary::of(&geodesic_errors(map, &evaluated, fields.as_ref(), None, area).unwrap().0)
+    };
+    let (with, without, free) = (strict(&three), strict(&two), strict(&unbounded));
+    // Sharper than the choice of two, and than the same map unbounded.
+    assert!(with.within_005 > without.within_005 && with.mean < without.mean, "{with:?} vs two {without:?}");
+    assert!(with.within_005 > free.within_005, "{with:?} vs unbounded {free:?}");
 }

@@ -326,8 +326,8 @@ pub struct MapSelection {
     /// candidate (when [`ZoomOutParams::extrinsic`] is on). Default on.
     #[serde(default = "MapSelection::default_grown_extrinsic")]
     pub grown_extrinsic: bool,
-    /// Another map replaces the refined one at a vertex only where its smoothed posterior
-    /// support is more than `margin` times the refined map's (≥ 1; 1: the plain maximum).
+    /// The third map replaces the chosen one at a vertex only where its smoothed posterior
+    /// support is more than `margin` times the chosen map's (≥ 1; 1: the plain maximum).
     /// Default 1.5.
     #[serde(default = "MapSelection::default_margin")]
     pub margin: f64,
@@ -1047,10 +1047,9 @@ fn refine_with(
             Some(mut g) => {
                 let r2 = (sel.reach * reference.sqrt_area()).powi(2);
                 let pos = &reference.mesh.vertices;
-                for (m, image) in g.iter_mut().enumerate() {
-                    let (a, b) = (pos[*image], pos[base[m]]);
-                    if (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2) > r2 {
-                        *image = base[m];
+                for (image, &chosen) in g.iter_mut().zip(&base) {
+                    if crate::fmap::squared_distance(&pos[*image], &pos[chosen]) > r2 {
+                        *image = chosen;
                     }
                 }
                 choose(&[&base, &g], sel.margin)
