@@ -1018,44 +1018,28 @@ fn refine_with(
     if let (Some(e), Some(r), false) = (&z.extrinsic, &refined, partial) {
         refined = Some(refine_extrinsic(test, reference, r, e)?);
     }
-    if let (Some(sel), Some(fine), false) = (&z.select, &refined, partial) {
-        sel.check().map_err(|reason| Error::InvalidParameter { name: "select", reason })?;
-        let zc = ZoomOutParams { k_start: sel.coarse.0, k_final: sel.coarse.1, select: None, ..*z };
+    if let (Some(select), Some(fine), false) = (&z.select, &refined, partial) {
+        select.check().map_err(|reason| Error::InvalidParameter { name: "select", reason })?;
+        let zc = ZoomOutParams { k_start: select.coarse.0, k_final: select.coarse.1, select: None, ..*z };
         let coarse = zoomed_and_repaired(test, reference, map, params.unflip, |m| {
             refine_zoomout(test, reference, m, &zc)
         })?;
-        let rounds = unflip_rounds(test.mesh.n_vertices());
-        let choose = |maps: &[&[usize]], margin: f64| {
-            select_by_posterior(&test.mesh, &reference.mesh, posterior, maps, sel.sigma, margin, rounds)
-        };
-        // Region by region, the refined or the coarse map, whichever the posterior supports best.
-        let base = match &coarse {
-            Some(c) => choose(&[fine, c], 1.0),
-            None => fine.clone(),
-        };
-        // The extrinsic step of `map` itself, with the same repair of mirrored parts, replaces
-        // that only where clearly better supported; it refines precision only: where it moves
-        // an image far from the chosen map's (a limb the forest has mirrored, which ZoomOut
-        // undid), the chosen image stays.
-        let grown = match (&z.extrinsic, sel.grown_extrinsic) {
+        // The extrinsic step of `map` itself, with the same repair of mirrored parts.
+        let sharper = match (&z.extrinsic, select.grown_extrinsic) {
             (Some(e), true) => zoomed_and_repaired(test, reference, map, params.unflip, |m| {
                 refine_extrinsic(test, reference, m, e).map(Some)
             })?,
             _ => None,
         };
-        refined = Some(match grown {
-            Some(mut g) => {
-                let r2 = (sel.reach * reference.sqrt_area()).powi(2);
-                let pos = &reference.mesh.vertices;
-                for (image, &chosen) in g.iter_mut().zip(&base) {
-                    if crate::fmap::squared_distance(&pos[*image], &pos[chosen]) > r2 {
-                        *image = chosen;
-                    }
-                }
-                choose(&[&base, &g], sel.margin)
-            }
-            None => base,
-        });
+        let rounds = unflip_rounds(test.mesh.n_vertices());
+        refined = Some(refine::choose_refined(
+            test,
+            reference,
+            posterior,
+            (fine, coarse.as_deref(), sharper),
+            select,
+            rounds,
+        ));
     }
     Ok(refined)
 }

@@ -4,7 +4,7 @@
 
 use std::{cmp::Reverse, collections::BinaryHeap};
 
-use super::{PreparedShape, RegularizerError as Error, ZoomOutParams};
+use super::{MapSelection, PreparedShape, RegularizerError as Error, ZoomOutParams};
 use crate::{
     fmap::{point_to_point_in_cells, zoomout_on_samples, CellBalls, SampleCells, ZoomOutSchedule},
     geodesic::{dijkstra_nearest_source, farthest_point_sampling_euclidean},
@@ -212,6 +212,36 @@ pub fn select_by_posterior<S: crate::fmap::SoftCorrespondence + ?Sized>(
             maps[best][m]
         })
         .collect()
+}
+
+/// The choice of [`MapSelection`] (see there): region by region `fine` or `coarse`, whichever
+/// the posterior supports best, then `sharper`'s image where it lies within `select.reach` of
+/// that choice and the posterior supports it `select.margin` times as well. `rounds` passes of
+/// mesh neighbours smooth the scores.
+pub(super) fn choose_refined<S: crate::fmap::SoftCorrespondence + ?Sized>(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    posterior: &S,
+    (fine, coarse, sharper): (&[usize], Option<&[usize]>, Option<Vec<usize>>),
+    select: &MapSelection,
+    rounds: usize,
+) -> Vec<usize> {
+    let choose = |maps: &[&[usize]], margin: f64| {
+        select_by_posterior(&test.mesh, &reference.mesh, posterior, maps, select.sigma, margin, rounds)
+    };
+    let chosen = match coarse {
+        Some(c) => choose(&[fine, c], 1.0),
+        None => fine.to_vec(),
+    };
+    let Some(mut sharper) = sharper else { return chosen };
+    let r2 = (select.reach * reference.sqrt_area()).powi(2);
+    let pos = &reference.mesh.vertices;
+    for (image, &c) in sharper.iter_mut().zip(&chosen) {
+        if crate::fmap::squared_distance(&pos[*image], &pos[c]) > r2 {
+            *image = c;
+        }
+    }
+    choose(&[&chosen, &sharper], select.margin)
 }
 
 /// `refined`, unless `check_samples` (> 0) farthest-point samples find it farther from an
