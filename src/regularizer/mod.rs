@@ -1031,14 +1031,14 @@ fn refine_with(
             })?,
             _ => None,
         };
-        let rounds = unflip_rounds(test.mesh.n_vertices());
         refined = Some(refine::choose_refined(
             test,
             reference,
             posterior,
-            (fine, coarse.as_deref(), sharper),
+            fine,
+            coarse.as_deref(),
+            sharper,
             select,
-            rounds,
         ));
     }
     Ok(refined)

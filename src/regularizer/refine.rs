@@ -216,16 +216,19 @@ pub fn select_by_posterior<S: crate::fmap::SoftCorrespondence + ?Sized>(
 
 /// The choice of [`MapSelection`] (see there): region by region `fine` or `coarse`, whichever
 /// the posterior supports best, then `sharper`'s image where it lies within `select.reach` of
-/// that choice and the posterior supports it `select.margin` times as well. `rounds` passes of
-/// mesh neighbours smooth the scores.
+/// that choice and the posterior supports it `select.margin` times as well. The scores are
+/// smoothed over as many passes of mesh neighbours as the mirror repair's
+/// ([`super::unflip_rounds`]).
 pub(super) fn choose_refined<S: crate::fmap::SoftCorrespondence + ?Sized>(
     test: &PreparedShape,
     reference: &PreparedShape,
     posterior: &S,
-    (fine, coarse, sharper): (&[usize], Option<&[usize]>, Option<Vec<usize>>),
+    fine: &[usize],
+    coarse: Option<&[usize]>,
+    sharper: Option<Vec<usize>>,
     select: &MapSelection,
-    rounds: usize,
 ) -> Vec<usize> {
+    let rounds = super::unflip_rounds(test.mesh.n_vertices());
     let choose = |maps: &[&[usize]], margin: f64| {
         select_by_posterior(&test.mesh, &reference.mesh, posterior, maps, select.sigma, margin, rounds)
     };
