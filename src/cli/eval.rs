@@ -189,6 +189,10 @@ pub struct EvalArgs {
     /// reference samples as extra candidates, `top20`: 20 candidates per sample in the game, `top20+free`).
     #[arg(long)]
     pub diagnose: bool,
+    /// Refine each map onto the reference itself instead of onto the training shape in the pose
+    /// nearest the test shape's (`ProtocolParams::relay`; with ZoomOut only).
+    #[arg(long)]
+    pub no_relay: bool,
     /// Anchor growth weighs each (vertex, anchor) distance by how far it can be from the
     /// scan's boundary (see `regularizer::pair_trust`).
     #[arg(long)]
@@ -754,6 +758,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         augment_copies: args.augment_copies,
         regularizer: args.regularizer_params(false),
         diagnose: args.diagnose.then(|| diagnosis_variants(&args.regularizer_params(false))),
+        relay: !args.no_relay,
         ..ProtocolParams::default()
     };
     let n_labels = class.shapes[0].truth.len();

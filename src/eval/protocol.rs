@@ -52,7 +52,9 @@ use crate::{
     },
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, perturbations_name, Mesh, Perturbation},
-    regularizer::{regularize, PreparedShape, RegularizerParams, ScanPart},
+    regularizer::{
+        nearest_pose, regularize, through_labels, PreparedShape, RegularizerParams, ScanPart,
+    },
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
@@ -128,6 +130,11 @@ pub struct ProtocolParams {
     /// at each stage of the regulariser, and with each of these variants of its settings
     /// (named). Default off.
     pub diagnose: Option<Vec<(String, RegularizerParams)>>,
+    /// Regularise each test shape onto the training shape in the pose nearest its own (a
+    /// relay, or the reference itself) and carry the map back to the reference through the
+    /// labels (see [`crate::regularizer::nearest_pose`]). Default `true`; off while diagnosing
+    /// (the diagnosis reads the regulariser's stages on the reference).
+    pub relay: bool,
 }
 
 /// Where a test's wrong points come from (with [`ProtocolParams::diagnose`]): the fraction of
@@ -169,6 +176,7 @@ impl Default for ProtocolParams {
             augment: Vec::new(),
             augment_copies: 4,
             diagnose: None,
+            relay: true,
         }
     }
 }
@@ -518,6 +526,25 @@ pub fn run_protocol(
         .zoomout
         .filter(|z| z.k_final > params.spectrum.k)
         .map(|z| params.spectrum.with_k(z.k_final));
+    // A shape that maps are refined onto (the reference or a relay): prepared, with the
+    // ZoomOut spectrum and, when known, the class's left/right symmetry, which lets the
+    // regulariser repair mirrored maps (a property of the label set, the same from the
+    // training shapes alone).
+    let prepare_target = |s: usize| -> Result<PreparedShape, EvalError> {
+        let r = &shapes[s];
+        let mut prepared = PreparedShape::new(r.mesh.clone(), spectrum_of(s)?, params.regularizer.heat)?;
+        if let Some(zp) = &zoomout_spectrum {
+            prepared = prepared.with_zoomout_spectrum(Arc::new(spectrum_cached(&r.mesh, zp, cache.as_ref())?))?;
+        }
+        if let (Some(sym), Some(_)) = (symmetry, params.regularizer.unflip) {
+            let self_map = super::symmetry::vertex_symmetry(&r.mesh, &r.truth, sym)?;
+            prepared = prepared.with_symmetry(self_map.into())?;
+        }
+        Ok(prepared)
+    };
+    // The last relay: (its index, the reference's), its prepared shape and its vertex map to
+    // the reference.
+    let mut prepared_relay: Option<((usize, usize), PreparedShape, Vec<usize>)> = None;
     let mut tests = Vec::with_capacity(jobs.len());
     for (done, (t, train)) in jobs.iter().enumerate() {
         let test_shape = &shapes[*t];
@@ -576,21 +603,7 @@ pub fn run_protocol(
         let t0 = Instant::now();
         if reference_cache.as_ref().map(|r| r.0) != Some(reference) {
             let r = &shapes[reference];
-            let mut prepared =
-                PreparedShape::new(r.mesh.clone(), spectrum_of(reference)?, params.regularizer.heat)?;
-            if let Some(zp) = &zoomout_spectrum {
-                prepared = prepared.with_zoomout_spectrum(Arc::new(spectrum_cached(
-                    &r.mesh,
-                    zp,
-                    cache.as_ref(),
-                )?))?;
-            }
-            // The class's left/right symmetry, when known, lets the regulariser repair mirrored
-            // maps (a property of the label set, the same from the training shapes alone).
-            if let (Some(sym), Some(_)) = (symmetry, params.regularizer.unflip) {
-                let self_map = super::symmetry::vertex_symmetry(&r.mesh, &r.truth, sym)?;
-                prepared = prepared.with_symmetry(self_map.into())?;
-            }
+            let prepared = prepare_target(reference)?;
             timings.prepare_s += t0.elapsed().as_secs_f64();
             stage(&mut progress, "evaluate");
             let t1 = Instant::now();
@@ -676,7 +689,30 @@ pub fn run_protocol(
 
         stage(&mut progress, "regularize");
         let t0 = Instant::now();
-        let dense = regularize(&test_prepared, ref_prepared, &prediction, Some(table), &params.regularizer)?;
+        // Onto the training shape in the nearest pose (the reference itself, or a relay whose
+        // map is carried back through the labels).
+        let target = if params.relay && params.diagnose.is_none() {
+            let candidates: Vec<(&Mesh, &[usize])> =
+                train.iter().map(|&s| (&*shapes[s].mesh, shapes[s].truth.as_slice())).collect();
+            train[nearest_pose(&test_prepared.mesh, &prediction, &candidates)?]
+        } else {
+            reference
+        };
+        let dense = if target == reference {
+            regularize(&test_prepared, ref_prepared, &prediction, Some(table), &params.regularizer)?
+        } else {
+            if prepared_relay.as_ref().map(|p| p.0) != Some((target, reference)) {
+                let to_reference =
+                    through_labels(&shapes[target].mesh, &shapes[target].truth, &shapes[reference].mesh, table)?;
+                let t1 = Instant::now();
+                prepared_relay = Some(((target, reference), prepare_target(target)?, to_reference));
+                timings.prepare_s += t1.elapsed().as_secs_f64();
+            }
+            let (_, prepared, to_reference) =
+                prepared_relay.as_ref().ok_or_else(|| invalid("internal: relay missing".into()))?;
+            regularize(&test_prepared, prepared, &prediction, Some(&shapes[target].truth), &params.regularizer)?
+                .carried(to_reference)?
+        };
         timings.regularize_s = t0.elapsed().as_secs_f64();
 
         let baseline = if params.skip_baseline {

@@ -32,6 +32,7 @@ mod orientation;
 mod pair;
 mod partial;
 mod refine;
+mod relay;
 mod scan;
 mod smoothing;
 
@@ -52,6 +53,7 @@ pub use partial::{
     PARTIAL_AREA_RATIO,
 };
 pub use refine::{cell_balls, map_distortion, refine_zoomout, sample_cells, select_by_posterior};
+pub use relay::{nearest_pose, through_labels, POSE_SAMPLES};
 pub use scan::ScanPart;
 
 use faer::Mat;
