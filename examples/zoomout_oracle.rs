@@ -76,7 +76,9 @@ fn main() -> Result<()> {
             let (mut de, mut dg, mut c) = (0.0, 0.0, 0.0);
             for (x, &i) in sub.iter().enumerate() {
                 for &j in &sub {
-                    let d = |p: [f64; 3], q: [f64; 3]| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
+                    let d = |p: [f64; 3], q: [f64; 3]| {
+                        ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+                    };
                     let ea = d(pa.mesh.vertices[ta[i]], pa.mesh.vertices[ta[j]]) * sa;
                     let eb = d(pb.mesh.vertices[tb[i]], pb.mesh.vertices[tb[j]]) * sb;
                     de += (ea - eb).abs();

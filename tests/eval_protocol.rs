@@ -99,6 +99,8 @@ fn a_zoomout_basis_beyond_the_descriptors_eigenpairs_is_computed_and_used() {
                 ..Default::default()
             },
             cache_dir: Some(cache.path().to_path_buf()),
+            // Onto the reference itself, so that its spectra are the ones counted below.
+            relay: false,
             ..ProtocolParams::default()
         };
         run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap()

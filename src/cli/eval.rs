@@ -987,7 +987,7 @@ fn write_point_errors(out: &Path, report: &ProtocolReport) -> Result<()> {
 
 fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usize) -> Result<()> {
     let mut csv = String::from(
-        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation\n",
+        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation,regularised_onto\n",
     );
     for t in &report.tests {
         let scan = t.scan.as_deref().unwrap_or(&class.shapes[t.test].mesh);
@@ -1003,7 +1003,7 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
             let sy = m.symmetric.as_ref().map(|y| ErrorSummary::of(y));
             let _ = writeln!(
                 csv,
-                "{},{},{},{},{},{},{},{},{:.6},{:.4}",
+                "{},{},{},{},{},{},{},{},{:.6},{:.4},{}",
                 report.shape_names[t.test],
                 report.shape_names[t.reference],
                 m.method.name(),
@@ -1013,7 +1013,8 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
                 t.perturbation,
                 t.scan_vertices,
                 t.area_fraction,
-                orientation
+                orientation,
+                report.shape_names[t.relay.unwrap_or(t.reference)]
             );
         }
     }

@@ -52,9 +52,7 @@ use crate::{
     },
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, perturbations_name, Mesh, Perturbation},
-    regularizer::{
-        nearest_pose, regularize, through_labels, PreparedShape, RegularizerParams, ScanPart,
-    },
+    regularizer::{nearest_pose, regularize, through_labels, PreparedShape, RegularizerParams, ScanPart},
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
@@ -282,6 +280,11 @@ pub struct TestResult {
     pub test: usize,
     /// Reference shape (the first training shape).
     pub reference: usize,
+    /// The training shape the test was regularised onto when it was not the reference (the one
+    /// in the nearest pose, see [`ProtocolParams::relay`]); its map was carried to the
+    /// reference through the labels.
+    #[serde(default)]
+    pub relay: Option<usize>,
     /// Training shapes (indices into the input list, sorted).
     pub training: Vec<usize>,
     /// Whether the forest was reused from an earlier test with the same training set.
@@ -534,7 +537,8 @@ pub fn run_protocol(
         let r = &shapes[s];
         let mut prepared = PreparedShape::new(r.mesh.clone(), spectrum_of(s)?, params.regularizer.heat)?;
         if let Some(zp) = &zoomout_spectrum {
-            prepared = prepared.with_zoomout_spectrum(Arc::new(spectrum_cached(&r.mesh, zp, cache.as_ref())?))?;
+            prepared =
+                prepared.with_zoomout_spectrum(Arc::new(spectrum_cached(&r.mesh, zp, cache.as_ref())?))?;
         }
         if let (Some(sym), Some(_)) = (symmetry, params.regularizer.unflip) {
             let self_map = super::symmetry::vertex_symmetry(&r.mesh, &r.truth, sym)?;
@@ -702,16 +706,26 @@ pub fn run_protocol(
             regularize(&test_prepared, ref_prepared, &prediction, Some(table), &params.regularizer)?
         } else {
             if prepared_relay.as_ref().map(|p| p.0) != Some((target, reference)) {
-                let to_reference =
-                    through_labels(&shapes[target].mesh, &shapes[target].truth, &shapes[reference].mesh, table)?;
+                let to_reference = through_labels(
+                    &shapes[target].mesh,
+                    &shapes[target].truth,
+                    &shapes[reference].mesh,
+                    table,
+                )?;
                 let t1 = Instant::now();
                 prepared_relay = Some(((target, reference), prepare_target(target)?, to_reference));
                 timings.prepare_s += t1.elapsed().as_secs_f64();
             }
             let (_, prepared, to_reference) =
                 prepared_relay.as_ref().ok_or_else(|| invalid("internal: relay missing".into()))?;
-            regularize(&test_prepared, prepared, &prediction, Some(&shapes[target].truth), &params.regularizer)?
-                .carried(to_reference)?
+            regularize(
+                &test_prepared,
+                prepared,
+                &prediction,
+                Some(&shapes[target].truth),
+                &params.regularizer,
+            )?
+            .carried(to_reference)?
         };
         timings.regularize_s = t0.elapsed().as_secs_f64();
 
@@ -813,6 +827,7 @@ pub fn run_protocol(
         tests.push(TestResult {
             test: *t,
             reference,
+            relay: (target != reference).then_some(target),
             training: key,
             forest_reused,
             mean_support: prediction.mean_support(),

@@ -29,11 +29,16 @@ pub const POSE_SAMPLES: usize = 200;
 
 /// Labelled vertices averaged over to place an unlabelled one ([`through_labels`]).
 const INTERPOLATION_NEIGHBOURS: usize = 4;
+/// Of those, only the ones at most this many times as far as the nearest.
+const NEIGHBOUR_REACH: f64 = 2.0;
 
 /// Checks that `table` (label → vertex) has one entry per label, each a vertex of `mesh`.
 fn check_table(mesh: &Mesh, table: &[usize], n_labels: usize, what: &str) -> Result<(), Error> {
     if table.len() != n_labels {
-        return Err(Error::SizeMismatch(format!("{what}: label table of {} entries for {n_labels} labels", table.len())));
+        return Err(Error::SizeMismatch(format!(
+            "{what}: label table of {} entries for {n_labels} labels",
+            table.len()
+        )));
     }
     if table.iter().any(|&v| v >= mesh.n_vertices()) {
         return Err(Error::InvalidInput(format!(
@@ -66,7 +71,11 @@ fn pose_discrepancy(test: &Mesh, target: &Mesh, samples: &[usize], images: &[Opt
 /// Among `candidates` (each a mesh and its label → vertex table), the index of the one whose
 /// pose is nearest the test shape's under the forest's most probable labels (see the module
 /// documentation); the first on ties or when the forest predicted too few labels to compare.
-pub fn nearest_pose(test: &Mesh, prediction: &Prediction, candidates: &[(&Mesh, &[usize])]) -> Result<usize, Error> {
+pub fn nearest_pose(
+    test: &Mesh,
+    prediction: &Prediction,
+    candidates: &[(&Mesh, &[usize])],
+) -> Result<usize, Error> {
     if prediction.n_vertices() != test.n_vertices() {
         return Err(Error::SizeMismatch(format!(
             "prediction for {} vertices, test shape has {}",
@@ -84,7 +93,8 @@ pub fn nearest_pose(test: &Mesh, prediction: &Prediction, candidates: &[(&Mesh, 
     let labels = prediction.map_labels();
     let mut best = (f64::INFINITY, 0);
     for (c, (mesh, table)) in candidates.iter().enumerate() {
-        let images: Vec<Option<usize>> = samples.iter().map(|&s| labels[s].map(|l| table[l as usize])).collect();
+        let images: Vec<Option<usize>> =
+            samples.iter().map(|&s| labels[s].map(|l| table[l as usize])).collect();
         if let Some(d) = pose_discrepancy(test, mesh, &samples, &images) {
             if d < best.0 {
                 best = (d, c);
@@ -96,8 +106,9 @@ pub fn nearest_pose(test: &Mesh, prediction: &Prediction, candidates: &[(&Mesh, 
 
 /// `a`'s vertex → `b`'s vertex through the labels (`a_table`, `b_table`: label → vertex).
 /// Each vertex of `a` is placed on `b` at the mean position of its labels' vertices there (of
-/// the `INTERPOLATION_NEIGHBOURS` labelled vertices nearest in space, weighted by inverse
-/// distance, when it carries no label) and takes the vertex of `b` nearest that point. (The
+/// the `INTERPOLATION_NEIGHBOURS` labelled vertices nearest in space, those at most
+/// `NEIGHBOUR_REACH` times as far as the nearest, weighted by inverse distance, when it carries
+/// no label) and takes the vertex of `b` nearest that point. (The
 /// nearest labelled vertex alone would move the image of every unlabelled vertex by about an
 /// edge: in the remeshed sets a third of the vertices carry no label.)
 pub fn through_labels(a: &Mesh, a_table: &[usize], b: &Mesh, b_table: &[usize]) -> Result<Vec<usize>, Error> {
@@ -110,8 +121,8 @@ pub fn through_labels(a: &Mesh, a_table: &[usize], b: &Mesh, b_table: &[usize]) 
     let mut sums = vec![([0.0; 3], 0usize); a.n_vertices()];
     for (&va, &vb) in a_table.iter().zip(b_table) {
         let (sum, count) = &mut sums[va];
-        for d in 0..3 {
-            sum[d] += b.vertices[vb][d];
+        for (s, x) in sum.iter_mut().zip(b.vertices[vb]) {
+            *s += x;
         }
         *count += 1;
     }
@@ -130,7 +141,10 @@ pub fn through_labels(a: &Mesh, a_table: &[usize], b: &Mesh, b_table: &[usize]) 
                 position(v)
             } else {
                 let (mut acc, mut total) = ([0.0; 3], 0.0);
-                for hit in near_labelled.nearest_n::<SquaredEuclidean>(&a.vertices[v], want) {
+                let hits = near_labelled.nearest_n::<SquaredEuclidean>(&a.vertices[v], want);
+                // Only neighbours about as near as the nearest: no average across a thin gap.
+                let reach = NEIGHBOUR_REACH * hits[0].distance.sqrt();
+                for hit in hits.iter().filter(|h| h.distance.sqrt() <= reach) {
                     let w = 1.0 / (hit.distance.sqrt() + 1e-12);
                     let p = position(labelled[hit.item as usize]);
                     for d in 0..3 {

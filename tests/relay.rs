@@ -1,0 +1,140 @@
+//! Regularisation through the training shape in the nearest pose: the choice of that shape, the
+//! vertex map through the labels, and the protocol that carries relayed maps to the reference.
+
+use std::sync::Arc;
+
+use shapeforest::{
+    eval::{
+        protocol::{run_protocol, Method, ProtocolParams, ProtocolShape},
+        PooledReport,
+    },
+    forest::{Prediction, RandomForest},
+    mesh::Mesh,
+    regularizer::{nearest_pose, through_labels, RegularizerError},
+    synth::{creature_family, CreatureParams},
+};
+
+fn family(n_shapes: usize) -> shapeforest::synth::ShapeFamily {
+    creature_family(&CreatureParams { target_vertices: 1500, seed: 3, ..Default::default() }, n_shapes)
+        .expect("synthetic family")
+}
+
+/// A one-hot prediction of `labels[v]` for every vertex.
+fn one_hot(labels: &[usize], n_labels: usize) -> Prediction {
+    let n = labels.len();
+    Prediction::from_parts(
+        n_labels,
+        (0..=n).collect(),
+        labels.iter().map(|&l| l as u32).collect(),
+        vec![1.0; n],
+    )
+    .unwrap()
+}
+
+#[test]
+fn the_nearest_pose_is_found_at_another_scale_through_mirror_confused_labels() {
+    let fam = family(5);
+    let n = fam.template.n_vertices();
+    let identity: Vec<usize> = (0..n).collect();
+    // The test shape: shape 2's pose at three times its size; the forest confuses every third
+    // vertex with its mirror image.
+    let test = fam.shapes[2].scaled(3.0);
+    let labels: Vec<usize> = (0..n).map(|v| if v % 3 == 0 { fam.symmetry[v] } else { v }).collect();
+    let prediction = one_hot(&labels, n);
+    let order = [1, 3, 2, 4];
+    let candidates: Vec<(&Mesh, &[usize])> =
+        order.iter().map(|&i| (&fam.shapes[i], identity.as_slice())).collect();
+    let chosen = nearest_pose(&test, &prediction, &candidates).unwrap();
+    assert_eq!(order[chosen], 2, "chose shape {} for a test in shape 2's pose", order[chosen]);
+    // Without a pose of its own among them, any candidate but the first is a real choice; with
+    // one candidate there is nothing to choose.
+    assert_eq!(nearest_pose(&test, &prediction, &candidates[..1]).unwrap(), 0);
+    // A label table of another label set is refused, naming the candidate.
+    let short = &identity[..n - 1];
+    let bad: Vec<(&Mesh, &[usize])> = vec![(&fam.shapes[1], identity.as_slice()), (&fam.shapes[3], short)];
+    match nearest_pose(&test, &prediction, &bad) {
+        Err(RegularizerError::SizeMismatch(m)) => assert!(m.contains("pose candidate 1"), "{m}"),
+        other => panic!("expected a size mismatch, got {other:?}"),
+    }
+}
+
+#[test]
+fn through_labels_places_unlabelled_vertices_between_their_labelled_neighbours() {
+    let fam = family(2);
+    let mesh = &fam.shapes[1];
+    let n = mesh.n_vertices();
+    // Fully labelled onto itself: the identity.
+    let identity: Vec<usize> = (0..n).collect();
+    assert_eq!(through_labels(mesh, &identity, mesh, &identity).unwrap(), identity);
+    // Only every other vertex labelled (the remeshed sets leave a third unlabelled): the
+    // unlabelled ones are placed by their labelled neighbours, mostly onto themselves, and on
+    // average far nearer themselves than the nearest labelled vertex is (which is where a plain
+    // nearest-neighbour extension would put every one of them).
+    let labelled: Vec<usize> = (0..n).step_by(2).collect();
+    let map = through_labels(mesh, &labelled, mesh, &labelled).unwrap();
+    assert!(labelled.iter().all(|&v| map[v] == v), "a labelled vertex moved");
+    let dist = |a: usize, b: usize| {
+        (0..3).map(|i| (mesh.vertices[a][i] - mesh.vertices[b][i]).powi(2)).sum::<f64>().sqrt()
+    };
+    let unlabelled: Vec<usize> = (1..n).step_by(2).collect();
+    let on_itself = unlabelled.iter().filter(|&&v| map[v] == v).count() as f64 / unlabelled.len() as f64;
+    let placed: f64 = unlabelled.iter().map(|&v| dist(v, map[v])).sum::<f64>() / unlabelled.len() as f64;
+    let nearest: f64 = unlabelled
+        .iter()
+        .map(|&v| labelled.iter().map(|&l| dist(v, l)).fold(f64::INFINITY, f64::min))
+        .sum::<f64>()
+        / unlabelled.len() as f64;
+    println!("on itself {on_itself:.3}, mean offset {placed:.4}, nearest labelled {nearest:.4}");
+    assert!(
+        on_itself > 0.5,
+        "only {:.1} % of the unlabelled vertices placed on themselves",
+        100.0 * on_itself
+    );
+    assert!(
+        placed < 0.5 * nearest,
+        "placed {placed} from themselves, the nearest labelled vertex is {nearest}"
+    );
+    // Tables of two label sets are refused.
+    assert!(through_labels(mesh, &labelled, mesh, &identity).is_err());
+}
+
+#[test]
+fn relayed_maps_are_carried_to_the_reference_and_do_not_lose_accuracy() {
+    let fam = family(7);
+    let shapes: Vec<ProtocolShape> = fam
+        .shapes
+        .iter()
+        .enumerate()
+        .map(|(i, m)| ProtocolShape::identity(format!("s{i}"), Arc::new(m.clone())))
+        .collect();
+    let run = |relay: bool| {
+        let params = ProtocolParams {
+            n_train: 5,
+            max_tests: Some(3),
+            eval_points: 300,
+            skip_baseline: true,
+            forest: RandomForest::params().n_trees(6).seed(5),
+            relay,
+            ..ProtocolParams::default()
+        };
+        run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap()
+    };
+    let (with, without) = (run(true), run(false));
+    assert!(without.tests.iter().all(|t| t.relay.is_none()));
+    let relayed: Vec<_> = with.tests.iter().filter(|t| t.relay.is_some()).collect();
+    assert!(!relayed.is_empty(), "no test was regularised onto a relay");
+    for t in &relayed {
+        let s = t.relay.unwrap();
+        assert!(t.training.contains(&s) && s != t.reference && s != t.test);
+        // The relayed map, carried back, is a good map onto the reference.
+        let reg = t.methods.iter().find(|m| m.method == Method::ForestRegularized).unwrap();
+        assert_eq!(reg.map.len(), fam.shapes[t.test].n_vertices());
+        assert!(reg.map.iter().all(|&r| r < fam.shapes[t.reference].n_vertices()));
+        let within = reg.strict.iter().filter(|&&e| e <= 0.1).count() as f64 / reg.strict.len() as f64;
+        assert!(within > 0.8, "relayed map of s{} via s{s}: {within} within 0.1", t.test);
+    }
+    let (a, _) = with.summary(Method::ForestRegularized);
+    let (b, _) = without.summary(Method::ForestRegularized);
+    println!("with relay {a:?}\nwithout {b:?}");
+    assert!(a.within_005 >= b.within_005 - 0.02, "relay {a:?} vs reference {b:?}");
+}
