@@ -1,6 +1,8 @@
 //! Regularisation through the training shape in the nearest pose: the choice of that shape, the
 //! vertex map through the labels, and the protocol that carries relayed maps to the reference.
 
+mod common;
+
 use std::sync::Arc;
 
 use shapeforest::{
@@ -137,4 +139,74 @@ fn relayed_maps_are_carried_to_the_reference_and_do_not_lose_accuracy() {
     let (b, _) = without.summary(Method::ForestRegularized);
     println!("with relay {a:?}\nwithout {b:?}");
     assert!(a.within_005 >= b.within_005 - 0.02, "relay {a:?} vs reference {b:?}");
+}
+
+#[test]
+fn match_regularises_onto_the_relay_in_the_scans_pose_and_writes_a_map_onto_the_reference() {
+    use shapeforest::{
+        forest::TrainingSet,
+        mesh::write_mesh,
+        spectral::{compute_spectrum, SpectrumParams},
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let fam = family(5);
+    let n = fam.template.n_vertices();
+    let spectra: Vec<_> =
+        fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &SpectrumParams::new(60)).unwrap())).collect();
+    let set = TrainingSet::same_indexing((1..5).map(|i| (format!("s{i}"), spectra[i].clone()))).unwrap();
+    let forest = RandomForest::params().n_trees(4).check().unwrap().fit(&set).unwrap();
+    let model = dir.path().join("m.sfm");
+    forest.save(&model).unwrap();
+    let path = |name: &str| dir.path().join(name);
+    write_mesh(path("ref.off"), &fam.shapes[1]).unwrap();
+    for i in [2, 3] {
+        write_mesh(path(&format!("s{i}.off")), &fam.shapes[i]).unwrap();
+    }
+    // The scan: shape 3's pose at twice its size (a training shape's pose, as the relay's).
+    write_mesh(path("scan.off"), &fam.shapes[3].scaled(2.0)).unwrap();
+    let labels: String = (0..n).map(|v| format!("{v}\n")).collect();
+    std::fs::write(path("labels.txt"), &labels).unwrap();
+    let run = |relay_labels: &str| {
+        common::bin()
+            .args(["match", "--model"])
+            .arg(&model)
+            .arg("--reference")
+            .arg(path("ref.off"))
+            .arg("--mesh")
+            .arg(path("scan.off"))
+            .arg("--out")
+            .arg(path("out"))
+            .arg("--relay")
+            .arg(path("s2.off"))
+            .arg(path("labels.txt"))
+            .arg("--relay")
+            .arg(path("s3.off"))
+            .arg(path(relay_labels))
+            .output()
+            .unwrap()
+    };
+    let o = run("labels.txt");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("s3.off, the nearest pose"), "{stdout}");
+    let report = std::fs::read_to_string(path("out/scan.report.json")).unwrap();
+    assert!(report.contains("\"regularised_onto_relay\"") && report.contains("s3.off"), "{report}");
+    // The map is onto the reference (shape 1, the same indexing): most vertices near home.
+    let text = std::fs::read_to_string(path("out/scan.map.txt")).unwrap();
+    let map: Vec<usize> = text.lines().filter(|l| !l.starts_with('#')).map(|l| l.parse().unwrap()).collect();
+    assert_eq!(map.len(), n);
+    let reference = &fam.shapes[1];
+    let scale = reference.surface_area().sqrt();
+    let dist = |a: usize, b: usize| {
+        (0..3).map(|k| (reference.vertices[a][k] - reference.vertices[b][k]).powi(2)).sum::<f64>().sqrt()
+            / scale
+    };
+    let near = (0..n).filter(|&v| dist(v, map[v]) < 0.05).count() as f64 / n as f64;
+    assert!(near > 0.8, "only {:.1} % of the vertices within 0.05 (Euclidean) of home", 100.0 * near);
+    // A relay whose label map does not fit its mesh is refused, naming the file.
+    std::fs::write(path("short.txt"), &labels[..labels.len() / 2]).unwrap();
+    let o = run("short.txt");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("short.txt") && err.contains("s3.off"), "{err}");
 }

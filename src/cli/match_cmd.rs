@@ -26,9 +26,14 @@ use std::{
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use shapeforest::{
-    forest::{per_vertex_labels, read_label_map, read_per_label_rows, reference_table, RandomForest},
+    forest::{
+        per_vertex_labels, read_label_map, read_per_label_rows, reference_table, Prediction, RandomForest,
+    },
     mesh::{coordinate_colors, read_mesh, write_colored_ply, Mesh},
-    regularizer::{regularize, regularize_pair, PairParams, PreparedShape, RegularizerParams, ScanPart},
+    regularizer::{
+        nearest_pose, regularize, regularize_pair, through_labels, PairParams, PreparedShape,
+        RegularizerParams, ScanPart,
+    },
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
@@ -72,54 +77,81 @@ pub struct MatchArgs {
     /// mean error ×100 with the default 200; 1.80 with the refinement of before, 20 → 100).
     #[arg(long, default_value_t = 200, value_name = "K")]
     pub zoomout_k: usize,
+    /// A labelled training shape in another pose, with its label map (as --reference-labels);
+    /// repeatable. The scan is regularised onto the one among them and the reference whose pose
+    /// is nearest its own, and the map carried back to the reference through the labels
+    /// (`regularizer::nearest_pose`; README, "Relays").
+    #[arg(long, num_args = 2, value_names = ["MESH", "LABELS"], conflicts_with = "to")]
+    pub relay: Vec<PathBuf>,
+}
+
+/// A training shape the scan may be regularised onto instead of the reference.
+struct Relay {
+    path: PathBuf,
+    mesh: Arc<Mesh>,
+    /// Label → vertex of `mesh`.
+    table: Vec<usize>,
 }
 
 fn stem(p: &Path) -> String {
     shapeforest::pipeline::shape_stem(p)
 }
 
+/// The label → vertex table of `mesh` (read from `mesh_path`) from its label map at `path`:
+/// `.vts` per-label rows, or one label per vertex; every one of the model's `n_labels` labels
+/// must be placed.
+fn table_from_labels(
+    path: &Path,
+    mesh: &Mesh,
+    mesh_path: &Path,
+    forest: &RandomForest,
+) -> Result<Vec<usize>> {
+    let n_labels = forest.n_labels();
+    let file = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let reader = std::io::BufReader::new(file);
+    let is_vts = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("vts"));
+    let (labels, rows) = if is_vts {
+        let rows = read_per_label_rows(reader, true, mesh.n_vertices())
+            .with_context(|| format!("bad label map {}", path.display()))?;
+        (per_vertex_labels(&rows, mesh.n_vertices()), Some(rows))
+    } else {
+        let labels = read_label_map(reader, false, n_labels)
+            .with_context(|| format!("bad label map {}", path.display()))?;
+        if labels.len() != mesh.n_vertices() {
+            bail!(
+                "{} has {} lines but the mesh {} has {} vertices (one label per vertex expected)",
+                path.display(),
+                labels.len(),
+                mesh_path.display(),
+                mesh.n_vertices()
+            );
+        }
+        (labels, None)
+    };
+    let t = reference_table(n_labels, mesh, &labels, rows.as_deref(), &[])
+        .with_context(|| format!("{} cannot place the model's labels", path.display()))?;
+    if t.unused > 0 {
+        bail!(
+            "the labels {} place {} of the model's {} labels; the other {} are not on {}, so points \
+             predicted with them would be matched wrongly: use a shape that carries every label{}",
+            path.display(),
+            t.exact,
+            n_labels,
+            t.unused,
+            mesh_path.display(),
+            forest
+                .reference()
+                .map_or(String::new(), |r| format!(", or the model's own reference `{}`", r.name))
+        );
+    }
+    Ok(t.table)
+}
+
 /// The label → reference-vertex table for `reference` (`None`: labels are its vertex indices).
 fn label_table(args: &MatchArgs, forest: &RandomForest, reference: &Mesh) -> Result<Option<Vec<usize>>> {
     let n_labels = forest.n_labels();
     if let Some(path) = &args.reference_labels {
-        let file = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-        let reader = std::io::BufReader::new(file);
-        let is_vts = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("vts"));
-        let (labels, rows) = if is_vts {
-            let rows = read_per_label_rows(reader, true, reference.n_vertices())
-                .with_context(|| format!("bad label map {}", path.display()))?;
-            (per_vertex_labels(&rows, reference.n_vertices()), Some(rows))
-        } else {
-            let labels = read_label_map(reader, false, n_labels)
-                .with_context(|| format!("bad label map {}", path.display()))?;
-            if labels.len() != reference.n_vertices() {
-                bail!(
-                    "{} has {} lines but the reference {} has {} vertices (one label per vertex expected)",
-                    path.display(),
-                    labels.len(),
-                    args.reference.display(),
-                    reference.n_vertices()
-                );
-            }
-            (labels, None)
-        };
-        let t = reference_table(n_labels, reference, &labels, rows.as_deref(), &[])
-            .with_context(|| format!("{} cannot serve as the reference", path.display()))?;
-        if t.unused > 0 {
-            bail!(
-                "the reference labels {} place {} of the model's {} labels; the other {} are not on this \
-                 reference, so points predicted with them would be matched wrongly: use a reference that \
-                 carries every label{}",
-                path.display(),
-                t.exact,
-                n_labels,
-                t.unused,
-                forest
-                    .reference()
-                    .map_or(String::new(), |r| format!(", or the model's own reference `{}`", r.name))
-            );
-        }
-        return Ok(Some(t.table));
+        return table_from_labels(path, reference, &args.reference, forest).map(Some);
     }
     match forest.reference() {
         Some(r) => r.table_for(reference).map(Some).with_context(|| {
@@ -144,6 +176,26 @@ fn label_table(args: &MatchArgs, forest: &RandomForest, reference: &Mesh) -> Res
             reference.n_vertices()
         ),
     }
+}
+
+/// The relay in the pose nearest the scan's (`part`), with the reference's label table
+/// (`None`: the reference's own pose is nearest, or no relay was given).
+fn nearest_relay<'a>(
+    part: &Mesh,
+    prediction: &Prediction,
+    reference: &Mesh,
+    table: Option<&[usize]>,
+    relays: &'a [Relay],
+) -> Result<Option<(&'a Relay, Vec<usize>)>> {
+    if relays.is_empty() {
+        return Ok(None);
+    }
+    let ref_table: Vec<usize> =
+        table.map_or_else(|| (0..reference.n_vertices()).collect(), <[usize]>::to_vec);
+    let mut candidates: Vec<(&Mesh, &[usize])> = vec![(reference, &ref_table)];
+    candidates.extend(relays.iter().map(|r| (&*r.mesh, r.table.as_slice())));
+    let chosen = nearest_pose(part, prediction, &candidates)?;
+    Ok(chosen.checked_sub(1).map(|i| (&relays[i], ref_table)))
 }
 
 fn spectrum(
@@ -196,8 +248,19 @@ pub fn run(args: MatchArgs) -> Result<()> {
         Some(p) => Some(read_mesh(p).with_context(|| format!("cannot read mesh {}", p.display()))?),
         None => None,
     };
-    let load_s = t0.elapsed().as_secs_f64();
     let table = label_table(&args, &forest, &reference)?;
+    let relays = args
+        .relay
+        .chunks(2)
+        .map(|pair| {
+            let [mesh_path, labels] = pair else { bail!("--relay takes a mesh and its label map") };
+            let mesh =
+                read_mesh(mesh_path).with_context(|| format!("cannot read mesh {}", mesh_path.display()))?;
+            let table = table_from_labels(labels, &mesh, mesh_path, &forest)?;
+            Ok(Relay { path: mesh_path.clone(), mesh: Arc::new(mesh), table })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let load_s = t0.elapsed().as_secs_f64();
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let cache = match &args.cache {
         Some(d) => {
@@ -286,6 +349,8 @@ pub fn run(args: MatchArgs) -> Result<()> {
     }
     let prepare_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
+    // The relay the scan was regularised onto, if any.
+    let mut onto_relay: Option<String> = None;
     // With --to: the target scan's spectrum, prediction and preparation count in this stage.
     // `dense`: the regularisation the report's quality fields describe; `map`: the map written.
     let (dense, map, quality_of, target) = match (target, &args.to) {
@@ -319,7 +384,29 @@ pub fn run(args: MatchArgs) -> Result<()> {
             }
         }
         _ => {
-            let dense = regularize(&test, &refp, &prediction, table.as_deref(), &reg)?;
+            let dense = match nearest_relay(&part.mesh, &prediction, &reference, table.as_deref(), &relays)? {
+                None => regularize(&test, &refp, &prediction, table.as_deref(), &reg)?,
+                Some((relay, ref_table)) => {
+                    // Onto the relay, with the reference's symmetry carried over through the
+                    // labels, then back to the reference.
+                    let (sp, zoomout) = solve(&relay.mesh, &relay.path)?;
+                    let mut relayp = PreparedShape::new(relay.mesh.clone(), Arc::new(sp), reg.heat)?;
+                    if let Some(z) = zoomout {
+                        relayp = relayp.with_zoomout_spectrum(Arc::new(z))?;
+                    }
+                    let to_reference = through_labels(&relay.mesh, &relay.table, &reference, &ref_table)?;
+                    if let Some(sym) = refp.symmetry.as_deref() {
+                        let from_reference =
+                            through_labels(&reference, &ref_table, &relay.mesh, &relay.table)?;
+                        let relay_sym: Vec<usize> =
+                            to_reference.iter().map(|&r| from_reference[sym[r]]).collect();
+                        relayp = relayp.with_symmetry(relay_sym.into())?;
+                    }
+                    onto_relay = Some(relay.path.display().to_string());
+                    regularize(&test, &relayp, &prediction, Some(&relay.table), &reg)?
+                        .carried(&to_reference)?
+                }
+            };
             let map = part.extend(&scan, dense.map.clone());
             (dense, map, "the map onto the reference", None)
         }
@@ -360,6 +447,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
         "mesh": args.mesh.display().to_string(),
         "reference": args.reference.display().to_string(),
         "to": args.to.as_ref().map(|p| p.display().to_string()),
+        "regularised_onto_relay": onto_relay,
         "components": part.components,
         "matched_part_vertices": part.mesh.n_vertices(),
         "normalising_area_ratio": scale_ratio,
@@ -402,10 +490,11 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let report_path = args.out.join(format!("{scan_name}.report.json"));
     std::fs::write(&report_path, json).with_context(|| format!("cannot write {}", report_path.display()))?;
     println!(
-        "{} → {}: {} vertices matched, {} sparse matches, orientation {:.3}, mean confidence {:.3}; \
+        "{} → {}{}: {} vertices matched, {} sparse matches, orientation {:.3}, mean confidence {:.3}; \
          predict {predict_s:.2} s, regularise {regularize_s:.2} s; wrote {}",
         args.mesh.display(),
         onto_path.display(),
+        onto_relay.as_ref().map_or(String::new(), |r| format!(" (regularised onto {r}, the nearest pose)")),
         map.len(),
         dense.matches.len(),
         dense.orientation_score,
