@@ -67,27 +67,6 @@ fn main() -> Result<()> {
             let mean = e.iter().sum::<f64>() / e.len() as f64;
             (100.0 * mean, 100.0 * e.iter().filter(|&&x| x <= 0.05).count() as f64 / e.len() as f64)
         };
-        {
-            let sub: Vec<usize> = (0..ta.len()).step_by(25).collect();
-            let (sa, sb) = (1.0 / pa.mesh.surface_area().sqrt(), norm);
-            let heat_a = HeatMethodSolver::new(&pa.mesh, HeatParams::default())?;
-            let src_a: Vec<usize> = sub.iter().map(|&i| ta[i]).collect();
-            let fa = heat_a.distances_from_many(&src_a)?;
-            let (mut de, mut dg, mut c) = (0.0, 0.0, 0.0);
-            for (x, &i) in sub.iter().enumerate() {
-                for &j in &sub {
-                    let d = |p: [f64; 3], q: [f64; 3]| {
-                        ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
-                    };
-                    let ea = d(pa.mesh.vertices[ta[i]], pa.mesh.vertices[ta[j]]) * sa;
-                    let eb = d(pb.mesh.vertices[tb[i]], pb.mesh.vertices[tb[j]]) * sb;
-                    de += (ea - eb).abs();
-                    dg += (fa[(ta[j], x)] * sa - fields[(tb[j], i)] * sb).abs();
-                    c += 1.0;
-                }
-            }
-            println!("{a} → {b}: discrepancy euclidean {:.4} geodesic {:.4}", de / c, dg / c);
-        }
         if let Ok(d) = std::env::var("DUMP") {
             let mut out = String::from("k,truth,zoomout,extrinsic,extrinsic_truth\n");
             for i in 0..ta.len() {

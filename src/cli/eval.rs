@@ -189,8 +189,8 @@ pub struct EvalArgs {
     /// reference samples as extra candidates, `top20`: 20 candidates per sample in the game, `top20+free`).
     #[arg(long)]
     pub diagnose: bool,
-    /// Refine each map onto the reference itself instead of onto the training shape in the pose
-    /// nearest the test shape's (`ProtocolParams::relay`; with ZoomOut only).
+    /// Regularise each test shape onto the reference itself instead of onto the training shape
+    /// in the pose nearest its own (`ProtocolParams::relay`; README, "Relays").
     #[arg(long)]
     pub no_relay: bool,
     /// Anchor growth weighs each (vertex, anchor) distance by how far it can be from the

@@ -98,8 +98,8 @@ fn stem(p: &Path) -> String {
 }
 
 /// The label → vertex table of `mesh` (read from `mesh_path`) from its label map at `path`:
-/// `.vts` per-label rows, or one label per vertex; every one of the model's `n_labels` labels
-/// must be placed.
+/// `.vts` per-label rows, or one label per vertex; every one of the model's labels must be
+/// placed.
 fn table_from_labels(
     path: &Path,
     mesh: &Mesh,

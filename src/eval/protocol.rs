@@ -52,7 +52,9 @@ use crate::{
     },
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, perturbations_name, Mesh, Perturbation},
-    regularizer::{nearest_pose, regularize, through_labels, PreparedShape, RegularizerParams, ScanPart},
+    regularizer::{
+        nearest_pose, regularize, through_labels, DenseMap, PreparedShape, RegularizerParams, ScanPart,
+    },
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
@@ -130,8 +132,9 @@ pub struct ProtocolParams {
     pub diagnose: Option<Vec<(String, RegularizerParams)>>,
     /// Regularise each test shape onto the training shape in the pose nearest its own (a
     /// relay, or the reference itself) and carry the map back to the reference through the
-    /// labels (see [`crate::regularizer::nearest_pose`]). Default `true`; off while diagnosing
-    /// (the diagnosis reads the regulariser's stages on the reference).
+    /// labels (see [`crate::regularizer::nearest_pose`]; the WKS baseline goes onto the same
+    /// shape). Default `true`; off while diagnosing (the diagnosis reads the regulariser's
+    /// stages on the reference).
     pub relay: bool,
 }
 
@@ -702,31 +705,25 @@ pub fn run_protocol(
         } else {
             reference
         };
-        let dense = if target == reference {
-            regularize(&test_prepared, ref_prepared, &prediction, Some(table), &params.regularizer)?
-        } else {
-            if prepared_relay.as_ref().map(|p| p.0) != Some((target, reference)) {
-                let to_reference = through_labels(
-                    &shapes[target].mesh,
-                    &shapes[target].truth,
-                    &shapes[reference].mesh,
-                    table,
-                )?;
-                let t1 = Instant::now();
-                prepared_relay = Some(((target, reference), prepare_target(target)?, to_reference));
-                timings.prepare_s += t1.elapsed().as_secs_f64();
-            }
-            let (_, prepared, to_reference) =
-                prepared_relay.as_ref().ok_or_else(|| invalid("internal: relay missing".into()))?;
-            regularize(
-                &test_prepared,
-                prepared,
-                &prediction,
-                Some(&shapes[target].truth),
-                &params.regularizer,
-            )?
-            .carried(to_reference)?
+        if target != reference && prepared_relay.as_ref().map(|p| p.0) != Some((target, reference)) {
+            let to_reference =
+                through_labels(&shapes[target].mesh, &shapes[target].truth, &shapes[reference].mesh, table)?;
+            let t1 = Instant::now();
+            prepared_relay = Some(((target, reference), prepare_target(target)?, to_reference));
+            timings.prepare_s += t1.elapsed().as_secs_f64();
+        }
+        let relay = prepared_relay.as_ref().filter(|_| target != reference);
+        // A prediction regularised onto the target, as a map onto the reference.
+        let regularize_onto_target = |p: &Prediction| -> Result<DenseMap, EvalError> {
+            Ok(match relay {
+                None => regularize(&test_prepared, ref_prepared, p, Some(table), &params.regularizer)?,
+                Some((_, prepared, to_reference)) => {
+                    regularize(&test_prepared, prepared, p, Some(&shapes[target].truth), &params.regularizer)?
+                        .carried(to_reference)?
+                }
+            })
         };
+        let dense = regularize_onto_target(&prediction)?;
         timings.regularize_s = t0.elapsed().as_secs_f64();
 
         let baseline = if params.skip_baseline {
@@ -738,8 +735,7 @@ pub fn run_protocol(
             let knn_prediction = knn.predict(&test_prepared.spectrum, k)?;
             timings.knn_predict_s = t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
-            let knn_dense =
-                regularize(&test_prepared, ref_prepared, &knn_prediction, Some(table), &params.regularizer)?;
+            let knn_dense = regularize_onto_target(&knn_prediction)?;
             timings.knn_regularize_s = t0.elapsed().as_secs_f64();
             Some((knn_prediction, knn_dense))
         };
