@@ -77,7 +77,18 @@ fn eval_reads_vts_ground_truth_and_sym_vts_symmetry() {
     let stdout = eval_class(&class, &out, 6, 400);
     assert!(stdout.contains("1200 ground-truth rows (.vts)"), "{stdout}");
     assert!(stdout.contains("symmetry from .sym.vts"), "{stdout}");
+    assert!(
+        stdout.contains("relays: ") && stdout.contains(" of 1 test shape(s) regularised onto"),
+        "{stdout}"
+    );
     let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
+    // Every row names the training shape its test was regularised onto (the reference or a
+    // relay), never the test shape itself.
+    for row in csv.lines().skip(1) {
+        let cols: Vec<&str> = row.split(',').collect();
+        let onto = cols.last().unwrap();
+        assert!(onto.starts_with("creature") && *onto != cols[0], "{row}");
+    }
     let reg = csv.lines().find(|l| l.contains(",forest+reg,")).unwrap();
     // The numeric columns (n … sym_median); the perturbation columns follow.
     let cols: Vec<f64> = reg.split(',').skip(3).take(9).map(|c| c.parse().unwrap()).collect();

@@ -812,6 +812,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
     pb.finish_and_clear();
 
     print!("{}", format_table(&report));
+    if params.relay {
+        let relayed = report.tests.iter().filter(|t| t.relay.is_some()).count();
+        println!(
+            "relays: {relayed} of {} test shape(s) regularised onto the training shape in the nearest pose \
+             instead of the reference (results.csv: regularised_onto; --no-relay: none)",
+            report.tests.len()
+        );
+    }
     print!("{}", format_timings(&report));
     print!("{}", format_diagnoses(&report));
     write_outputs(&args.out, &class, &report, params.curve_steps)?;
