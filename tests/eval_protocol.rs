@@ -10,9 +10,9 @@ use shapeforest::{
         protocol::{run_protocol, Method, ProtocolParams, ProtocolShape},
         PooledReport,
     },
-    forest::{RandomForest, TrainingSet},
+    forest::RandomForest,
     mesh::{read_mesh, write_mesh},
-    spectral::{compute_spectrum, SpectrumParams},
+    spectral::SpectrumParams,
     synth::{creature_family, CreatureParams},
 };
 
@@ -162,12 +162,8 @@ fn match_writes_all_outputs_and_the_map_round_trips() {
     let dir = tempfile::tempdir().unwrap();
     let fam = family(1000, 3);
     let n = fam.template.n_vertices();
-    let spectra: Vec<_> =
-        fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &SpectrumParams::new(60)).unwrap())).collect();
-    let set = TrainingSet::same_indexing((0..2).map(|i| (format!("s{i}"), spectra[i].clone()))).unwrap();
-    let forest = RandomForest::params().n_trees(3).check().unwrap().fit(&set).unwrap();
     let model = dir.path().join("m.sfm");
-    forest.save(&model).unwrap();
+    common::save_shared_indexing_model(&[&fam.shapes[0], &fam.shapes[1]], 3, &model);
     let reference = dir.path().join("ref.off");
     let scan = dir.path().join("scan.off");
     write_mesh(&reference, &fam.shapes[0]).unwrap();

@@ -143,20 +143,13 @@ fn relayed_maps_are_carried_to_the_reference_and_do_not_lose_accuracy() {
 
 #[test]
 fn match_regularises_onto_the_relay_in_the_scans_pose_and_writes_a_map_onto_the_reference() {
-    use shapeforest::{
-        forest::TrainingSet,
-        mesh::write_mesh,
-        spectral::{compute_spectrum, SpectrumParams},
-    };
+    use shapeforest::mesh::write_mesh;
     let dir = tempfile::tempdir().unwrap();
     let fam = family(5);
     let n = fam.template.n_vertices();
-    let spectra: Vec<_> =
-        fam.shapes.iter().map(|m| Arc::new(compute_spectrum(m, &SpectrumParams::new(60)).unwrap())).collect();
-    let set = TrainingSet::same_indexing((1..5).map(|i| (format!("s{i}"), spectra[i].clone()))).unwrap();
-    let forest = RandomForest::params().n_trees(4).check().unwrap().fit(&set).unwrap();
     let model = dir.path().join("m.sfm");
-    forest.save(&model).unwrap();
+    let training: Vec<&Mesh> = fam.shapes[1..5].iter().collect();
+    common::save_shared_indexing_model(&training, 4, &model);
     let path = |name: &str| dir.path().join(name);
     write_mesh(path("ref.off"), &fam.shapes[1]).unwrap();
     for i in [2, 3] {

@@ -316,10 +316,6 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let t0 = Instant::now();
     let (scan_spectrum, scan_zoomout) = solve(&spectrum_mesh, &args.mesh)?;
     let spectrum_scan_s = t0.elapsed().as_secs_f64();
-    let t0 = Instant::now();
-    let (ref_spectrum, ref_zoomout) = solve(&reference, &args.reference)?;
-    let ref_spectrum = Arc::new(ref_spectrum);
-    let spectrum_ref_s = t0.elapsed().as_secs_f64();
     let (scan_spectrum, scale_ratio) = if args.to.is_none() {
         let (sp, r) = part.spectrum_for_matching(&spectrum_mesh, scan_spectrum, ref_area);
         (Arc::new(sp), r)
@@ -330,27 +326,45 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let t0 = Instant::now();
     let prediction = forest.predict(&scan_spectrum).context("forest prediction failed")?;
     let predict_s = t0.elapsed().as_secs_f64();
-    let t0 = Instant::now();
     let reference = Arc::new(reference);
+    // The shape the scan is regularised onto: the relay in the nearest pose, or the reference
+    // (whose spectrum is then the only one solved besides the scan's).
+    let relay = nearest_relay(&part.mesh, &prediction, &reference, table.as_deref(), &relays)?;
+    // The reference's left/right symmetry, when the model stores it (trained with `.sym.vts`),
+    // lets the regulariser repair mirrored maps; a relay gets it through the labels.
+    let symmetry = forest.reference().filter(|r| r.is_mesh(&reference)).and_then(|r| r.symmetry_map());
+    let has_symmetry = symmetry.is_some();
+    let t0 = Instant::now();
+    let (onto_mesh, onto_path, onto_symmetry, to_reference) = match &relay {
+        None => (reference.clone(), args.reference.as_path(), symmetry, None),
+        Some((relay, ref_table)) => {
+            let to_reference = through_labels(&relay.mesh, &relay.table, &reference, ref_table)?;
+            let relay_symmetry = match symmetry {
+                Some(sym) => {
+                    let from_reference = through_labels(&reference, ref_table, &relay.mesh, &relay.table)?;
+                    Some(to_reference.iter().map(|&r| from_reference[sym[r]]).collect())
+                }
+                None => None,
+            };
+            (relay.mesh.clone(), relay.path.as_path(), relay_symmetry, Some(to_reference))
+        }
+    };
+    let (onto_spectrum, onto_zoomout) = solve(&onto_mesh, onto_path)?;
+    let spectrum_ref_s = t0.elapsed().as_secs_f64();
+    let t0 = Instant::now();
     let mut test = PreparedShape::new(part.mesh.clone(), scan_spectrum, reg.heat)?;
-    let mut refp = PreparedShape::new(reference.clone(), ref_spectrum, reg.heat)?;
-    if let (Some(sp), Some(rp)) = (scan_zoomout, ref_zoomout) {
+    let mut onto_prepared = PreparedShape::new(onto_mesh, Arc::new(onto_spectrum), reg.heat)?;
+    if let (Some(sp), Some(rp)) = (scan_zoomout, onto_zoomout) {
         let sp =
             if args.to.is_none() { part.spectrum_for_matching(&spectrum_mesh, sp, ref_area).0 } else { sp };
         test = test.with_zoomout_spectrum(Arc::new(sp))?;
-        refp = refp.with_zoomout_spectrum(Arc::new(rp))?;
+        onto_prepared = onto_prepared.with_zoomout_spectrum(Arc::new(rp))?;
     }
-    // The reference's left/right symmetry, when the model stores it (trained with `.sym.vts`),
-    // lets the regulariser repair mirrored maps.
-    let symmetry = forest.reference().filter(|r| r.is_mesh(&reference)).and_then(|r| r.symmetry_map());
-    let has_symmetry = symmetry.is_some();
-    if let Some(s) = symmetry {
-        refp = refp.with_symmetry(s.into())?;
+    if let Some(s) = onto_symmetry {
+        onto_prepared = onto_prepared.with_symmetry(s.into())?;
     }
     let prepare_s = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
-    // The relay the scan was regularised onto, if any.
-    let mut onto_relay: Option<String> = None;
     // With --to: the target scan's spectrum, prediction and preparation count in this stage.
     // `dense`: the regularisation the report's quality fields describe; `map`: the map written.
     let (dense, map, quality_of, target) = match (target, &args.to) {
@@ -366,7 +380,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
             let pair = regularize_pair(
                 &test,
                 &targetp,
-                &refp,
+                &onto_prepared,
                 &prediction,
                 &target_prediction,
                 table.as_deref(),
@@ -384,33 +398,18 @@ pub fn run(args: MatchArgs) -> Result<()> {
             }
         }
         _ => {
-            let dense = match nearest_relay(&part.mesh, &prediction, &reference, table.as_deref(), &relays)? {
-                None => regularize(&test, &refp, &prediction, table.as_deref(), &reg)?,
-                Some((relay, ref_table)) => {
-                    // Onto the relay, with the reference's symmetry carried over through the
-                    // labels, then back to the reference.
-                    let (sp, zoomout) = solve(&relay.mesh, &relay.path)?;
-                    let mut relayp = PreparedShape::new(relay.mesh.clone(), Arc::new(sp), reg.heat)?;
-                    if let Some(z) = zoomout {
-                        relayp = relayp.with_zoomout_spectrum(Arc::new(z))?;
-                    }
-                    let to_reference = through_labels(&relay.mesh, &relay.table, &reference, &ref_table)?;
-                    if let Some(sym) = refp.symmetry.as_deref() {
-                        let from_reference =
-                            through_labels(&reference, &ref_table, &relay.mesh, &relay.table)?;
-                        let relay_sym: Vec<usize> =
-                            to_reference.iter().map(|&r| from_reference[sym[r]]).collect();
-                        relayp = relayp.with_symmetry(relay_sym.into())?;
-                    }
-                    onto_relay = Some(relay.path.display().to_string());
-                    regularize(&test, &relayp, &prediction, Some(&relay.table), &reg)?
-                        .carried(&to_reference)?
+            let dense = match (&relay, &to_reference) {
+                (Some((relay, _)), Some(to_reference)) => {
+                    regularize(&test, &onto_prepared, &prediction, Some(&relay.table), &reg)?
+                        .carried(to_reference)?
                 }
+                _ => regularize(&test, &onto_prepared, &prediction, table.as_deref(), &reg)?,
             };
             let map = part.extend(&scan, dense.map.clone());
             (dense, map, "the map onto the reference", None)
         }
     };
+    let onto_relay = relay.as_ref().map(|(r, _)| r.path.display().to_string());
     let regularize_s = t0.elapsed().as_secs_f64();
 
     let t0 = Instant::now();
@@ -466,7 +465,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
         // heat-method sources solved and served from the prepared shapes' kept columns
         "heat_columns": {
             "scan": { "solved": test.column_counts().0, "reused": test.column_counts().1 },
-            "reference": { "solved": refp.column_counts().0, "reused": refp.column_counts().1 },
+            "reference": { "solved": onto_prepared.column_counts().0, "reused": onto_prepared.column_counts().1 },
         },
         "timings_s": {
             "load": load_s,

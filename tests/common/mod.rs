@@ -74,3 +74,20 @@ pub fn creatures_data_folder(data: &Path, seed: u64) -> usize {
     shapeforest::mesh::write_mesh(data.join("incoming/scan.off"), &fam.shapes[3]).unwrap();
     n
 }
+
+/// A model trained on `shapes` (one shared vertex indexing: labels = vertex indices; 60
+/// eigenpairs, `trees` trees, the default seed) and saved at `path`.
+pub fn save_shared_indexing_model(shapes: &[&shapeforest::mesh::Mesh], trees: usize, path: &Path) {
+    use shapeforest::{
+        forest::{RandomForest, TrainingSet},
+        spectral::{compute_spectrum, SpectrumParams},
+    };
+    use std::sync::Arc;
+    let spectra = shapes.iter().enumerate().map(|(i, m)| {
+        (format!("s{i}"), Arc::new(compute_spectrum(m, &SpectrumParams::new(60)).expect("spectrum")))
+    });
+    let set = TrainingSet::same_indexing(spectra).expect("training set");
+    let forest =
+        RandomForest::params().n_trees(trees).check().expect("forest params").fit(&set).expect("forest");
+    forest.save(path).expect("model file");
+}
