@@ -101,7 +101,7 @@ fn through_labels_places_unlabelled_vertices_between_their_labelled_neighbours()
 }
 
 #[test]
-fn relayed_maps_are_carried_to_the_reference_and_do_not_lose_accuracy() {
+fn relayed_and_voted_maps_are_carried_to_the_reference_and_do_not_lose_accuracy() {
     let fam = family(7);
     let shapes: Vec<ProtocolShape> = fam
         .shapes
@@ -109,7 +109,7 @@ fn relayed_maps_are_carried_to_the_reference_and_do_not_lose_accuracy() {
         .enumerate()
         .map(|(i, m)| ProtocolShape::identity(format!("s{i}"), Arc::new(m.clone())))
         .collect();
-    let run = |relay: bool| {
+    let run = |relay: bool, relay_votes: usize| {
         let params = ProtocolParams {
             n_train: 5,
             max_tests: Some(3),
@@ -117,12 +117,14 @@ fn relayed_maps_are_carried_to_the_reference_and_do_not_lose_accuracy() {
             skip_baseline: true,
             forest: RandomForest::params().n_trees(6).seed(5),
             relay,
+            relay_votes,
             ..ProtocolParams::default()
         };
         run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap()
     };
-    let (with, without) = (run(true), run(false));
-    assert!(without.tests.iter().all(|t| t.relay.is_none()));
+    let (with, without, voted) = (run(true, 1), run(false, 1), run(true, 3));
+    assert!(without.tests.iter().all(|t| t.relay.is_none() && t.votes.is_empty()));
+    assert!(with.tests.iter().all(|t| t.votes.is_empty()));
     let relayed: Vec<_> = with.tests.iter().filter(|t| t.relay.is_some()).collect();
     assert!(!relayed.is_empty(), "no test was regularised onto a relay");
     for t in &relayed {
@@ -139,10 +141,22 @@ fn relayed_maps_are_carried_to_the_reference_and_do_not_lose_accuracy() {
     let (b, _) = without.summary(Method::ForestRegularized);
     println!("with relay {a:?}\nwithout {b:?}");
     assert!(a.within_005 >= b.within_005 - 0.02, "relay {a:?} vs reference {b:?}");
+    // Three votes: the nearest pose and the next two, all training shapes or the reference,
+    // each map voted with the other two; no accuracy lost against the nearest pose alone.
+    for (t, one) in voted.tests.iter().zip(&with.tests) {
+        assert_eq!(t.relay, one.relay, "s{}: the nearest pose is the same", t.test);
+        assert_eq!(t.votes.len(), 2, "s{}: {:?}", t.test, t.votes);
+        let nearest = t.relay.unwrap_or(t.reference);
+        assert!(t.votes.iter().all(|v| t.training.contains(v) && *v != nearest && *v != t.test));
+    }
+    let (c, _) = voted.summary(Method::ForestRegularized);
+    let (d, _) = with.summary(Method::ForestRegularized);
+    println!("voted {c:?}\nnearest pose alone {d:?}");
+    assert!(c.within_005 >= d.within_005 - 0.02, "voted {c:?} vs nearest pose {d:?}");
 }
 
 #[test]
-fn match_regularises_onto_the_relay_in_the_scans_pose_and_writes_a_map_onto_the_reference() {
+fn match_regularises_onto_the_relay_in_the_scans_pose_votes_and_writes_a_map_onto_the_reference() {
     use shapeforest::mesh::write_mesh;
     let dir = tempfile::tempdir().unwrap();
     let fam = family(5);
@@ -159,7 +173,7 @@ fn match_regularises_onto_the_relay_in_the_scans_pose_and_writes_a_map_onto_the_
     write_mesh(path("scan.off"), &fam.shapes[3].scaled(2.0)).unwrap();
     let labels: String = (0..n).map(|v| format!("{v}\n")).collect();
     std::fs::write(path("labels.txt"), &labels).unwrap();
-    let run = |relay_labels: &str| {
+    let run = |relay_labels: &str, votes: &str| {
         common::bin()
             .args(["match", "--model"])
             .arg(&model)
@@ -175,30 +189,47 @@ fn match_regularises_onto_the_relay_in_the_scans_pose_and_writes_a_map_onto_the_
             .arg("--relay")
             .arg(path("s3.off"))
             .arg(path(relay_labels))
+            .args(["--relay-votes", votes])
             .output()
             .unwrap()
     };
-    let o = run("labels.txt");
+    let o = run("labels.txt", "1");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(stdout.contains("s3.off, the nearest pose"), "{stdout}");
     let report = std::fs::read_to_string(path("out/scan.report.json")).unwrap();
     assert!(report.contains("\"regularised_onto_relay\"") && report.contains("s3.off"), "{report}");
     // The map is onto the reference (shape 1, the same indexing): most vertices near home.
-    let text = std::fs::read_to_string(path("out/scan.map.txt")).unwrap();
-    let map: Vec<usize> = text.lines().filter(|l| !l.starts_with('#')).map(|l| l.parse().unwrap()).collect();
-    assert_eq!(map.len(), n);
     let reference = &fam.shapes[1];
     let scale = reference.surface_area().sqrt();
     let dist = |a: usize, b: usize| {
         (0..3).map(|k| (reference.vertices[a][k] - reference.vertices[b][k]).powi(2)).sum::<f64>().sqrt()
             / scale
     };
-    let near = (0..n).filter(|&v| dist(v, map[v]) < 0.05).count() as f64 / n as f64;
+    let near_home = || {
+        let text = std::fs::read_to_string(path("out/scan.map.txt")).unwrap();
+        let map: Vec<usize> =
+            text.lines().filter(|l| !l.starts_with('#')).map(|l| l.parse().unwrap()).collect();
+        assert_eq!(map.len(), n);
+        (0..n).filter(|&v| dist(v, map[v]) < 0.05).count() as f64 / n as f64
+    };
+    let near = near_home();
     assert!(near > 0.8, "only {:.1} % of the vertices within 0.05 (Euclidean) of home", 100.0 * near);
+    // Three votes: the relay in the scan's pose voted with the two other shapes, no worse.
+    let o = run("labels.txt", "3");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(path("out/scan.report.json")).unwrap()).unwrap();
+    assert!(report["regularised_onto_relay"].as_str().unwrap().ends_with("s3.off"), "{report}");
+    let voted: Vec<&str> =
+        report["voted_with"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+    assert_eq!(voted.len(), 2, "{voted:?}");
+    assert!(voted.iter().any(|v| v.ends_with("ref.off")) && voted.iter().any(|v| v.ends_with("s2.off")));
+    let voted_near = near_home();
+    assert!(voted_near >= near - 0.02, "voted {voted_near:.3} vs nearest pose alone {near:.3}");
     // A relay whose label map does not fit its mesh is refused, naming the file.
     std::fs::write(path("short.txt"), &labels[..labels.len() / 2]).unwrap();
-    let o = run("short.txt");
+    let o = run("short.txt", "1");
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("short.txt") && err.contains("s3.off"), "{err}");

@@ -193,6 +193,11 @@ pub struct EvalArgs {
     /// in the pose nearest its own (`ProtocolParams::relay`; README, "Relays").
     #[arg(long)]
     pub no_relay: bool,
+    /// Regularise each test shape onto this many of the nearest poses and vote per vertex among
+    /// the maps (`ProtocolParams::relay_votes`; 1: the nearest pose alone; each vote costs a
+    /// regularisation).
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    pub relay_votes: usize,
     /// Anchor growth weighs each (vertex, anchor) distance by how far it can be from the
     /// scan's boundary (see `regularizer::pair_trust`).
     #[arg(long)]
@@ -759,6 +764,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         regularizer: args.regularizer_params(false),
         diagnose: args.diagnose.then(|| diagnosis_variants(&args.regularizer_params(false))),
         relay: !args.no_relay,
+        relay_votes: args.relay_votes,
         ..ProtocolParams::default()
     };
     let n_labels = class.shapes[0].truth.len();
@@ -819,6 +825,12 @@ pub fn run(args: EvalArgs) -> Result<()> {
              instead of the reference (results.csv: regularised_onto; --no-relay: none)",
             report.tests.len()
         );
+        if params.relay_votes > 1 {
+            println!(
+                "votes: each map voted per vertex with the maps onto the next {} nearest pose(s) (results.csv: voted_with)",
+                params.relay_votes - 1
+            );
+        }
     }
     print!("{}", format_timings(&report));
     print!("{}", format_diagnoses(&report));
@@ -995,7 +1007,7 @@ fn write_point_errors(out: &Path, report: &ProtocolReport) -> Result<()> {
 
 fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usize) -> Result<()> {
     let mut csv = String::from(
-        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation,regularised_onto\n",
+        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation,regularised_onto,voted_with\n",
     );
     for t in &report.tests {
         let scan = t.scan.as_deref().unwrap_or(&class.shapes[t.test].mesh);
@@ -1011,7 +1023,7 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
             let sy = m.symmetric.as_ref().map(|y| ErrorSummary::of(y));
             let _ = writeln!(
                 csv,
-                "{},{},{},{},{},{},{},{},{:.6},{:.4},{}",
+                "{},{},{},{},{},{},{},{},{:.6},{:.4},{},{}",
                 report.shape_names[t.test],
                 report.shape_names[t.reference],
                 m.method.name(),
@@ -1022,7 +1034,8 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
                 t.scan_vertices,
                 t.area_fraction,
                 orientation,
-                report.shape_names[t.relay.unwrap_or(t.reference)]
+                report.shape_names[t.relay.unwrap_or(t.reference)],
+                t.votes.iter().map(|&v| report.shape_names[v].as_str()).collect::<Vec<_>>().join(" ")
             );
         }
     }

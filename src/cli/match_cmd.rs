@@ -31,7 +31,7 @@ use shapeforest::{
     },
     mesh::{coordinate_colors, read_mesh, write_colored_ply, Mesh},
     regularizer::{
-        nearest_pose, regularize, regularize_pair, through_labels, PairParams, PreparedShape,
+        poses_by_nearness, regularize, regularize_pair, through_labels, PairParams, PreparedShape,
         RegularizerParams, ScanPart,
     },
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
@@ -83,6 +83,12 @@ pub struct MatchArgs {
     /// (`regularizer::nearest_pose`; README, "Relays").
     #[arg(long, num_args = 2, value_names = ["MESH", "LABELS"], conflicts_with = "to")]
     pub relay: Vec<PathBuf>,
+    /// With --relay: regularise onto this many of the nearest poses (the reference among the
+    /// candidates) and vote per vertex among the maps carried to the reference
+    /// (`regularizer::vote_maps`; README, "Relays"). Each vote costs a spectrum and a
+    /// regularisation.
+    #[arg(long, default_value_t = 1, value_name = "N", requires = "relay")]
+    pub relay_votes: usize,
 }
 
 /// A training shape the scan may be regularised onto instead of the reference.
@@ -91,6 +97,15 @@ struct Relay {
     mesh: Arc<Mesh>,
     /// Label → vertex of `mesh`.
     table: Vec<usize>,
+}
+
+/// A shape the scan is regularised onto (the reference or a relay): prepared, its label →
+/// vertex table (`None`: labels are vertices) and its vertex map to the reference (`None`: it is
+/// the reference).
+struct OntoShape<'a> {
+    prepared: PreparedShape,
+    table: Option<&'a [usize]>,
+    to_reference: Option<Vec<usize>>,
 }
 
 fn stem(p: &Path) -> String {
@@ -178,24 +193,27 @@ fn label_table(args: &MatchArgs, forest: &RandomForest, reference: &Mesh) -> Res
     }
 }
 
-/// The relay in the pose nearest the scan's (`part`), with the reference's label table
-/// (`None`: the reference's own pose is nearest, or no relay was given).
-fn nearest_relay<'a>(
+/// The `votes` shapes in the poses nearest the scan's (`part`), nearest first: a relay, or
+/// `None` for the reference; and the reference's label table.
+fn relays_by_nearness<'a>(
     part: &Mesh,
     prediction: &Prediction,
     reference: &Mesh,
     table: Option<&[usize]>,
     relays: &'a [Relay],
-) -> Result<Option<(&'a Relay, Vec<usize>)>> {
-    if relays.is_empty() {
-        return Ok(None);
-    }
+    votes: usize,
+) -> Result<(Vec<Option<&'a Relay>>, Vec<usize>)> {
     let ref_table: Vec<usize> =
         table.map_or_else(|| (0..reference.n_vertices()).collect(), <[usize]>::to_vec);
+    if relays.is_empty() {
+        return Ok((vec![None], ref_table));
+    }
     let mut candidates: Vec<(&Mesh, &[usize])> = vec![(reference, &ref_table)];
     candidates.extend(relays.iter().map(|r| (&*r.mesh, r.table.as_slice())));
-    let chosen = nearest_pose(part, prediction, &candidates)?;
-    Ok(chosen.checked_sub(1).map(|i| (&relays[i], ref_table)))
+    let ranked = poses_by_nearness(part, prediction, &candidates)?;
+    let chosen =
+        ranked.into_iter().take(votes.max(1)).map(|c| c.checked_sub(1).map(|i| &relays[i])).collect();
+    Ok((chosen, ref_table))
 }
 
 fn spectrum(
@@ -327,43 +345,60 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let prediction = forest.predict(&scan_spectrum).context("forest prediction failed")?;
     let predict_s = t0.elapsed().as_secs_f64();
     let reference = Arc::new(reference);
-    // The shape the scan is regularised onto: the relay in the nearest pose, or the reference
-    // (whose spectrum is then the only one solved besides the scan's).
-    let relay = nearest_relay(&part.mesh, &prediction, &reference, table.as_deref(), &relays)?;
+    // The shapes the scan is regularised onto: the relay in the nearest pose, or the reference
+    // (whose spectrum is then the only one solved besides the scan's), and with --relay-votes
+    // the next nearest.
+    let (ontos, ref_table) =
+        relays_by_nearness(&part.mesh, &prediction, &reference, table.as_deref(), &relays, args.relay_votes)?;
     // The reference's left/right symmetry, when the model stores it (trained with `.sym.vts`),
     // lets the regulariser repair mirrored maps; a relay gets it through the labels.
     let symmetry = forest.reference().filter(|r| r.is_mesh(&reference)).and_then(|r| r.symmetry_map());
     let has_symmetry = symmetry.is_some();
     let t0 = Instant::now();
-    let (onto_mesh, onto_path, onto_symmetry, to_reference) = match &relay {
-        None => (reference.clone(), args.reference.as_path(), symmetry, None),
-        Some((relay, ref_table)) => {
-            let to_reference = through_labels(&relay.mesh, &relay.table, &reference, ref_table)?;
-            let relay_symmetry = match symmetry {
-                Some(sym) => {
-                    let from_reference = through_labels(&reference, ref_table, &relay.mesh, &relay.table)?;
-                    Some(to_reference.iter().map(|&r| from_reference[sym[r]]).collect())
-                }
-                None => None,
-            };
-            (relay.mesh.clone(), relay.path.as_path(), relay_symmetry, Some(to_reference))
-        }
-    };
-    let (onto_spectrum, onto_zoomout) = solve(&onto_mesh, onto_path)?;
-    let spectrum_ref_s = t0.elapsed().as_secs_f64();
-    let t0 = Instant::now();
     let mut test = PreparedShape::new(part.mesh.clone(), scan_spectrum, reg.heat)?;
-    let mut onto_prepared = PreparedShape::new(onto_mesh, Arc::new(onto_spectrum), reg.heat)?;
-    if let (Some(sp), Some(rp)) = (scan_zoomout, onto_zoomout) {
+    if let Some(sp) = scan_zoomout {
         let sp =
             if args.to.is_none() { part.spectrum_for_matching(&spectrum_mesh, sp, ref_area).0 } else { sp };
         test = test.with_zoomout_spectrum(Arc::new(sp))?;
-        onto_prepared = onto_prepared.with_zoomout_spectrum(Arc::new(rp))?;
     }
-    if let Some(s) = onto_symmetry {
-        onto_prepared = onto_prepared.with_symmetry(s.into())?;
+    let mut prepare_s = t0.elapsed().as_secs_f64();
+    let mut spectrum_ref_s = 0.0;
+    let mut onto_shapes: Vec<OntoShape<'_>> = Vec::new();
+    for onto in &ontos {
+        let t0 = Instant::now();
+        let (onto_mesh, onto_path, onto_symmetry, to_reference) = match onto {
+            None => (reference.clone(), args.reference.as_path(), symmetry.clone(), None),
+            Some(relay) => {
+                let to_reference = through_labels(&relay.mesh, &relay.table, &reference, &ref_table)?;
+                let relay_symmetry = match &symmetry {
+                    Some(sym) => {
+                        let from_reference =
+                            through_labels(&reference, &ref_table, &relay.mesh, &relay.table)?;
+                        Some(to_reference.iter().map(|&r| from_reference[sym[r]]).collect())
+                    }
+                    None => None,
+                };
+                (relay.mesh.clone(), relay.path.as_path(), relay_symmetry, Some(to_reference))
+            }
+        };
+        let (onto_spectrum, onto_zoomout) = solve(&onto_mesh, onto_path)?;
+        spectrum_ref_s += t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        let mut prepared = PreparedShape::new(onto_mesh, Arc::new(onto_spectrum), reg.heat)?;
+        if let Some(rp) = onto_zoomout {
+            prepared = prepared.with_zoomout_spectrum(Arc::new(rp))?;
+        }
+        if let Some(s) = onto_symmetry {
+            prepared = prepared.with_symmetry(s.into())?;
+        }
+        prepare_s += t0.elapsed().as_secs_f64();
+        let onto_table = match onto {
+            Some(relay) => Some(relay.table.as_slice()),
+            None => table.as_deref(),
+        };
+        onto_shapes.push(OntoShape { prepared, table: onto_table, to_reference });
     }
-    let prepare_s = t0.elapsed().as_secs_f64();
+    let onto_prepared = &onto_shapes[0].prepared;
     let t0 = Instant::now();
     // With --to: the target scan's spectrum, prediction and preparation count in this stage.
     // `dense`: the regularisation the report's quality fields describe; `map`: the map written.
@@ -380,7 +415,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
             let pair = regularize_pair(
                 &test,
                 &targetp,
-                &onto_prepared,
+                onto_prepared,
                 &prediction,
                 &target_prediction,
                 table.as_deref(),
@@ -398,18 +433,28 @@ pub fn run(args: MatchArgs) -> Result<()> {
             }
         }
         _ => {
-            let dense = match (&relay, &to_reference) {
-                (Some((relay, _)), Some(to_reference)) => {
-                    regularize(&test, &onto_prepared, &prediction, Some(&relay.table), &reg)?
-                        .carried(to_reference)?
-                }
-                _ => regularize(&test, &onto_prepared, &prediction, table.as_deref(), &reg)?,
-            };
+            // Onto each shape, carried to the reference; the first voted with the others.
+            let mut maps = onto_shapes
+                .iter()
+                .map(|onto| {
+                    let dense = regularize(&test, &onto.prepared, &prediction, onto.table, &reg)?;
+                    Ok(match &onto.to_reference {
+                        Some(t) => dense.carried(t)?,
+                        None => dense,
+                    })
+                })
+                .collect::<Result<Vec<_>>>()?;
+            let others = maps.split_off(1);
+            let dense = maps.remove(0).voted(&others, &reference)?;
             let map = part.extend(&scan, dense.map.clone());
             (dense, map, "the map onto the reference", None)
         }
     };
-    let onto_relay = relay.as_ref().map(|(r, _)| r.path.display().to_string());
+    let onto_relay = ontos[0].map(|r| r.path.display().to_string());
+    let voted_with: Vec<String> = ontos[1..]
+        .iter()
+        .map(|o| o.map_or_else(|| args.reference.display().to_string(), |r| r.path.display().to_string()))
+        .collect();
     let regularize_s = t0.elapsed().as_secs_f64();
 
     let t0 = Instant::now();
@@ -447,6 +492,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
         "reference": args.reference.display().to_string(),
         "to": args.to.as_ref().map(|p| p.display().to_string()),
         "regularised_onto_relay": onto_relay,
+        "voted_with": voted_with,
         "components": part.components,
         "matched_part_vertices": part.mesh.n_vertices(),
         "normalising_area_ratio": scale_ratio,

@@ -41,7 +41,7 @@ pub enum Command {
     /// Time shapeforest on benchmark meshes (`--out`), or compare with the peers' timings (`--report`).
     Bench(bench::BenchArgs),
     /// Evaluate the method on a class of shapes with ground truth (the paper's protocol).
-    Eval(eval::EvalArgs),
+    Eval(Box<eval::EvalArgs>),
     /// Match a mesh to a reference with a trained model; write the map and coloured meshes.
     Match(match_cmd::MatchArgs),
     /// Turn a clean mesh into a scan-like one (holes, a single view, a crop, noise), keeping its
@@ -87,7 +87,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(args) => train::run(args),
         Command::Predict(args) => predict::run(args),
         Command::Bench(args) => bench::run(args),
-        Command::Eval(args) => eval::run(args),
+        Command::Eval(args) => eval::run(*args),
         Command::Match(args) => match_cmd::run(args),
         Command::Perturb(args) => perturb::run(args),
         Command::View(args) => view::run(args),

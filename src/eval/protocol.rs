@@ -45,6 +45,9 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::{geodesic_errors, EvalError};
+
+/// Relays kept prepared between tests (each holds a spectrum and a heat factorisation).
+const RELAYS_KEPT: usize = 2;
 use crate::{
     descriptor::WksParams,
     forest::{
@@ -53,7 +56,7 @@ use crate::{
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, perturbations_name, Mesh, Perturbation},
     regularizer::{
-        nearest_pose, regularize, through_labels, DenseMap, PreparedShape, RegularizerParams, ScanPart,
+        poses_by_nearness, regularize, through_labels, DenseMap, PreparedShape, RegularizerParams, ScanPart,
     },
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
@@ -136,6 +139,11 @@ pub struct ProtocolParams {
     /// shape). Default `true`; off while diagnosing (the diagnosis reads the regulariser's
     /// stages on the reference).
     pub relay: bool,
+    /// With `relay`: regularise onto this many of the nearest poses (the reference among the
+    /// candidates) and vote per vertex among the maps carried to the reference
+    /// ([`crate::regularizer::vote_maps`]; ties and the other outputs go to the nearest pose's).
+    /// 1: the nearest pose alone. Each vote costs a regularisation. Default 1.
+    pub relay_votes: usize,
 }
 
 /// Where a test's wrong points come from (with [`ProtocolParams::diagnose`]): the fraction of
@@ -178,6 +186,7 @@ impl Default for ProtocolParams {
             augment_copies: 4,
             diagnose: None,
             relay: true,
+            relay_votes: 1,
         }
     }
 }
@@ -288,6 +297,9 @@ pub struct TestResult {
     /// reference through the labels.
     #[serde(default)]
     pub relay: Option<usize>,
+    /// The other shapes whose maps were voted with it ([`ProtocolParams::relay_votes`]).
+    #[serde(default)]
+    pub votes: Vec<usize>,
     /// Training shapes (indices into the input list, sorted).
     pub training: Vec<usize>,
     /// Whether the forest was reused from an earlier test with the same training set.
@@ -549,9 +561,9 @@ pub fn run_protocol(
         }
         Ok(prepared)
     };
-    // The last relay: (its index, the reference's), its prepared shape and its vertex map to
-    // the reference.
-    let mut prepared_relay: Option<((usize, usize), PreparedShape, Vec<usize>)> = None;
+    // The last relays: (its index, the reference's), its prepared shape and its vertex map to
+    // the reference; at most `RELAYS_KEPT`.
+    let mut prepared_relays: Vec<((usize, usize), PreparedShape, Vec<usize>)> = Vec::new();
     let mut tests = Vec::with_capacity(jobs.len());
     for (done, (t, train)) in jobs.iter().enumerate() {
         let test_shape = &shapes[*t];
@@ -698,32 +710,44 @@ pub fn run_protocol(
         let t0 = Instant::now();
         // Onto the training shape in the nearest pose (the reference itself, or a relay whose
         // map is carried back through the labels).
-        let target = if params.relay && params.diagnose.is_none() {
+        let targets = if params.relay && params.diagnose.is_none() {
             let candidates: Vec<(&Mesh, &[usize])> =
                 train.iter().map(|&s| (&*shapes[s].mesh, shapes[s].truth.as_slice())).collect();
-            train[nearest_pose(&test_prepared.mesh, &prediction, &candidates)?]
+            let ranked = poses_by_nearness(&test_prepared.mesh, &prediction, &candidates)?;
+            ranked.into_iter().take(params.relay_votes.max(1)).map(|c| train[c]).collect()
         } else {
-            reference
+            vec![reference]
         };
-        if target != reference && prepared_relay.as_ref().map(|p| p.0) != Some((target, reference)) {
+        for &target in targets.iter().filter(|&&t| t != reference) {
+            if prepared_relays.iter().any(|r| r.0 == (target, reference)) {
+                continue;
+            }
             let to_reference =
                 through_labels(&shapes[target].mesh, &shapes[target].truth, &shapes[reference].mesh, table)?;
             let t1 = Instant::now();
-            prepared_relay = Some(((target, reference), prepare_target(target)?, to_reference));
+            // Room for it: a relay this test does not use goes.
+            if prepared_relays.len() >= RELAYS_KEPT.max(targets.len()) {
+                if let Some(i) = prepared_relays.iter().position(|r| !targets.contains(&r.0 .0)) {
+                    prepared_relays.remove(i);
+                }
+            }
+            prepared_relays.push(((target, reference), prepare_target(target)?, to_reference));
             timings.prepare_s += t1.elapsed().as_secs_f64();
         }
-        let relay = prepared_relay.as_ref().filter(|_| target != reference);
-        // A prediction regularised onto the target, as a map onto the reference.
-        let regularize_onto_target = |p: &Prediction| -> Result<DenseMap, EvalError> {
-            Ok(match relay {
-                None => regularize(&test_prepared, ref_prepared, p, Some(table), &params.regularizer)?,
-                Some((_, prepared, to_reference)) => {
-                    regularize(&test_prepared, prepared, p, Some(&shapes[target].truth), &params.regularizer)?
-                        .carried(to_reference)?
-                }
-            })
+        // A prediction regularised onto a target, as a map onto the reference.
+        let regularize_onto = |target: usize, p: &Prediction| -> Result<DenseMap, EvalError> {
+            if target == reference {
+                return Ok(regularize(&test_prepared, ref_prepared, p, Some(table), &params.regularizer)?);
+            }
+            let (_, prepared, to_reference) =
+                prepared_relays.iter().find(|r| r.0 == (target, reference)).expect("prepared above");
+            Ok(regularize(&test_prepared, prepared, p, Some(&shapes[target].truth), &params.regularizer)?
+                .carried(to_reference)?)
         };
-        let dense = regularize_onto_target(&prediction)?;
+        let target = targets[0];
+        let others: Vec<DenseMap> =
+            targets[1..].iter().map(|&t| regularize_onto(t, &prediction)).collect::<Result<_, _>>()?;
+        let dense = regularize_onto(target, &prediction)?.voted(&others, &ref_prepared.mesh)?;
         timings.regularize_s = t0.elapsed().as_secs_f64();
 
         let baseline = if params.skip_baseline {
@@ -735,7 +759,7 @@ pub fn run_protocol(
             let knn_prediction = knn.predict(&test_prepared.spectrum, k)?;
             timings.knn_predict_s = t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
-            let knn_dense = regularize_onto_target(&knn_prediction)?;
+            let knn_dense = regularize_onto(target, &knn_prediction)?;
             timings.knn_regularize_s = t0.elapsed().as_secs_f64();
             Some((knn_prediction, knn_dense))
         };
@@ -824,6 +848,7 @@ pub fn run_protocol(
             test: *t,
             reference,
             relay: (target != reference).then_some(target),
+            votes: targets[1..].to_vec(),
             training: key,
             forest_reused,
             mean_support: prediction.mean_support(),

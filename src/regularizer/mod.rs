@@ -53,7 +53,7 @@ pub use partial::{
     PARTIAL_AREA_RATIO,
 };
 pub use refine::{cell_balls, map_distortion, refine_zoomout, sample_cells, select_by_posterior};
-pub use relay::{nearest_pose, through_labels, POSE_SAMPLES};
+pub use relay::{nearest_pose, poses_by_nearness, through_labels, vote_maps, POSE_SAMPLES};
 pub use scan::ScanPart;
 
 use faer::Mat;

@@ -76,6 +76,16 @@ pub fn nearest_pose(
     prediction: &Prediction,
     candidates: &[(&Mesh, &[usize])],
 ) -> Result<usize, Error> {
+    Ok(poses_by_nearness(test, prediction, candidates)?[0])
+}
+
+/// The indices of `candidates` (at least one), nearest pose first (see [`nearest_pose`]);
+/// candidates that cannot be compared come last, in their order.
+pub fn poses_by_nearness(
+    test: &Mesh,
+    prediction: &Prediction,
+    candidates: &[(&Mesh, &[usize])],
+) -> Result<Vec<usize>, Error> {
     if prediction.n_vertices() != test.n_vertices() {
         return Err(Error::SizeMismatch(format!(
             "prediction for {} vertices, test shape has {}",
@@ -83,25 +93,29 @@ pub fn nearest_pose(
             test.n_vertices()
         )));
     }
+    if candidates.is_empty() {
+        return Err(Error::InvalidInput("pose candidates: none given".into()));
+    }
     for (i, (mesh, table)) in candidates.iter().enumerate() {
         check_table(mesh, table, prediction.n_labels(), &format!("pose candidate {i}"))?;
     }
     if candidates.len() < 2 {
-        return Ok(0);
+        return Ok(vec![0]);
     }
     let samples = farthest_point_sampling_euclidean(test, POSE_SAMPLES.min(test.n_vertices()), None)?;
     let labels = prediction.map_labels();
-    let mut best = (f64::INFINITY, 0);
-    for (c, (mesh, table)) in candidates.iter().enumerate() {
-        let images: Vec<Option<usize>> =
-            samples.iter().map(|&s| labels[s].map(|l| table[l as usize])).collect();
-        if let Some(d) = pose_discrepancy(test, mesh, &samples, &images) {
-            if d < best.0 {
-                best = (d, c);
-            }
-        }
-    }
-    Ok(best.1)
+    let mut scored: Vec<(f64, usize)> = candidates
+        .iter()
+        .enumerate()
+        .map(|(c, (mesh, table))| {
+            let images: Vec<Option<usize>> =
+                samples.iter().map(|&s| labels[s].map(|l| table[l as usize])).collect();
+            (pose_discrepancy(test, mesh, &samples, &images).unwrap_or(f64::INFINITY), c)
+        })
+        .collect();
+    // A stable sort: ties keep the candidates' order.
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Ok(scored.into_iter().map(|(_, c)| c).collect())
 }
 
 /// `a`'s vertex → `b`'s vertex through the labels (`a_table`, `b_table`: label → vertex).
@@ -180,4 +194,76 @@ impl DenseMap {
         self.matches.iter_mut().try_for_each(|m| carry(&mut m.reference))?;
         Ok(self)
     }
+
+    /// This map's final and unrefined maps replaced by the vote ([`vote_maps`] on `reference`)
+    /// of its own and `others`' (maps of the same scan onto the same reference, e.g. regularised
+    /// onto other relays and carried back); ties go to this map. The other fields stay this
+    /// map's.
+    pub fn voted(mut self, others: &[DenseMap], reference: &Mesh) -> Result<Self, Error> {
+        if others.is_empty() {
+            return Ok(self);
+        }
+        let finals: Vec<&[usize]> =
+            std::iter::once(&self.map).chain(others.iter().map(|o| &o.map)).map(Vec::as_slice).collect();
+        let map = vote_maps(reference, &finals)?;
+        let unrefined: Vec<&[usize]> =
+            std::iter::once(self.unrefined_map()).chain(others.iter().map(DenseMap::unrefined_map)).collect();
+        let grown = vote_maps(reference, &unrefined)?;
+        if self.grown_map.is_some() || map != grown {
+            self.grown_map = Some(grown);
+        }
+        self.map = map;
+        Ok(self)
+    }
+}
+
+/// The per-vertex vote of several maps of one scan onto `reference` (test vertex → reference
+/// vertex, all of one length): each vertex takes the image whose summed Euclidean distance to
+/// the other maps' images is least (the medoid; with three maps, the image two of them agree
+/// on), the earliest map's on ties. Where maps regularised onto different relays go wrong in
+/// different places (a mirrored limb onto one, a slide onto another), the vote keeps the
+/// images the majority agrees on.
+///
+/// ```
+/// use shapeforest::{mesh::Mesh, regularizer::vote_maps};
+/// let line = Mesh::new(
+///     vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [9.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+///     vec![[0, 1, 4], [1, 2, 4], [2, 3, 4]],
+/// )
+/// .unwrap();
+/// // Vertex 0: two maps agree on 1. Vertex 1: images at x = 0, 2 and 9: the medoid, 2.
+/// let voted = vote_maps(&line, &[&[3, 0], &[1, 2], &[1, 3]]).unwrap();
+/// assert_eq!(voted, vec![1, 2]);
+/// ```
+pub fn vote_maps(reference: &Mesh, maps: &[&[usize]]) -> Result<Vec<usize>, Error> {
+    let Some(first) = maps.first() else {
+        return Err(Error::InvalidInput("vote: no map".into()));
+    };
+    let n = first.len();
+    let nr = reference.n_vertices();
+    for (i, m) in maps.iter().enumerate() {
+        if m.len() != n {
+            return Err(Error::SizeMismatch(format!("vote: map {i} has {} entries, map 0 has {n}", m.len())));
+        }
+        if let Some(&r) = m.iter().find(|&&r| r >= nr) {
+            return Err(Error::SizeMismatch(format!(
+                "vote: map {i} names vertex {r}, the reference has {nr}"
+            )));
+        }
+    }
+    let pos = &reference.vertices;
+    Ok((0..n)
+        .into_par_iter()
+        .map(|v| {
+            let cost = |i: usize| maps.iter().map(|m| norm(sub(pos[maps[i][v]], pos[m[v]]))).sum::<f64>();
+            let mut best = (0, cost(0));
+            for i in 1..maps.len() {
+                let c = cost(i);
+                if c < best.1 {
+                    best = (i, c);
+                }
+            }
+            maps[best.0][v]
+        })
+        .collect())
 }
