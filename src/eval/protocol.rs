@@ -45,9 +45,6 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::{geodesic_errors, EvalError};
-
-/// Relays kept prepared between tests (each holds a spectrum and a heat factorisation).
-const RELAYS_KEPT: usize = 2;
 use crate::{
     descriptor::WksParams,
     forest::{
@@ -60,6 +57,10 @@ use crate::{
     },
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
+
+/// Relays kept prepared between tests besides those a test votes with (each holds a spectrum
+/// and a heat factorisation).
+const RELAYS_KEPT: usize = 2;
 
 /// One shape of the evaluated class with its ground-truth table.
 #[derive(Clone, Debug)]
@@ -561,8 +562,8 @@ pub fn run_protocol(
         }
         Ok(prepared)
     };
-    // The last relays: (its index, the reference's), its prepared shape and its vertex map to
-    // the reference; at most `RELAYS_KEPT`.
+    // The last relays used: (the relay's index, the reference's), its prepared shape and its
+    // vertex map to the reference; at most `RELAYS_KEPT` or as many as a test votes with.
     let mut prepared_relays: Vec<((usize, usize), PreparedShape, Vec<usize>)> = Vec::new();
     let mut tests = Vec::with_capacity(jobs.len());
     for (done, (t, train)) in jobs.iter().enumerate() {
