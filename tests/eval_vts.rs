@@ -83,11 +83,16 @@ fn eval_reads_vts_ground_truth_and_sym_vts_symmetry() {
     );
     let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
     // Every row names the training shape its test was regularised onto (the reference or a
-    // relay), never the test shape itself.
+    // relay), never the test shape itself, and no shape voted with (one vote by default).
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (onto_col, voted_col) = (column("regularised_onto"), column("voted_with"));
     for row in csv.lines().skip(1) {
         let cols: Vec<&str> = row.split(',').collect();
-        let onto = cols.last().unwrap();
-        assert!(onto.starts_with("creature") && *onto != cols[0], "{row}");
+        assert_eq!(cols.len(), header.len(), "{row}");
+        let onto = cols[onto_col];
+        assert!(onto.starts_with("creature") && onto != cols[0], "{row}");
+        assert!(cols[voted_col].is_empty(), "{row}");
     }
     let reg = csv.lines().find(|l| l.contains(",forest+reg,")).unwrap();
     // The numeric columns (n … sym_median); the perturbation columns follow.
