@@ -723,9 +723,9 @@ pub fn run_protocol(
             if prepared_relays.iter().any(|r| r.0 == (target, reference)) {
                 continue;
             }
+            let t1 = Instant::now();
             let to_reference =
                 through_labels(&shapes[target].mesh, &shapes[target].truth, &shapes[reference].mesh, table)?;
-            let t1 = Instant::now();
             // Room for it: a relay this test does not use goes.
             if prepared_relays.len() >= RELAYS_KEPT.max(targets.len()) {
                 if let Some(i) = prepared_relays.iter().position(|r| !targets.contains(&r.0 .0)) {
