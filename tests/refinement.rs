@@ -1,5 +1,6 @@
 //! The refinements after the regulariser on the synthetic family (same triangulation, other
-//! poses: the true map is the identity): ZoomOut's schedule and the extrinsic refinement.
+//! poses: the true map is the identity): ZoomOut's schedule, the extrinsic refinement and its
+//! settling round.
 
 use std::sync::Arc;
 
@@ -8,8 +9,8 @@ use shapeforest::{
     eval::{geodesic_errors, ErrorSummary},
     geodesic::HeatParams,
     regularizer::{
-        refine_extrinsic, refine_zoomout, sample_cells, select_by_posterior, ExtrinsicParams, MapSelection,
-        PreparedShape, ZoomOutParams,
+        refine_extrinsic, refine_zoomout, sample_cells, select_by_posterior, settle_map, ExtrinsicParams,
+        MapSelection, PreparedShape, ZoomOutParams, SETTLE_REACH,
     },
     spectral::{compute_spectrum, SpectrumParams},
     synth::{creature_family, CreatureParams},
@@ -93,6 +94,35 @@ fn the_extrinsic_refinement_sharpens_a_map_off_by_a_ring() {
     let spectral = ExtrinsicParams { weight: 0.0, ..Default::default() };
     let plain = summary(&p, &refine_extrinsic(&p.test, &p.reference, &zoomed, &spectral).unwrap());
     assert!(after.mean <= plain.mean, "{after:?} vs no coordinates {plain:?}");
+}
+
+#[test]
+fn settling_sharpens_a_map_and_moves_no_image_beyond_its_reach() {
+    let p = pair();
+    let start = off_by_a_ring(&p, 7);
+    let e = ExtrinsicParams::default();
+    let settled = settle_map(&p.test, &p.reference, &start, &e, SETTLE_REACH).unwrap();
+    let (before, after) = (summary(&p, &start), summary(&p, &settled));
+    eprintln!("off by a ring: {before:?}\nsettled: {after:?}");
+    assert!(after.mean < before.mean, "{after:?} vs start {before:?}");
+    let pos = &p.reference.mesh.vertices;
+    let scale = p.reference.mesh.surface_area().sqrt();
+    let moved =
+        |a: usize, b: usize| (0..3).map(|k| (pos[a][k] - pos[b][k]).powi(2)).sum::<f64>().sqrt() / scale;
+    assert!(start.iter().zip(&settled).all(|(&a, &b)| moved(a, b) <= SETTLE_REACH + 1e-12));
+    // No reach: the map as it was; an unbounded one: one plain round of the extrinsic step.
+    assert_eq!(settle_map(&p.test, &p.reference, &start, &e, 0.0).unwrap(), start);
+    let round = refine_extrinsic(&p.test, &p.reference, &start, &ExtrinsicParams { rounds: 1, ..e }).unwrap();
+    assert_eq!(settle_map(&p.test, &p.reference, &start, &e, 1e9).unwrap(), round);
+    // A reach of half an edge: the images a ring away stay where they were.
+    let edge =
+        p.test.mesh.faces.iter().map(|f| moved(f[0], f[1])).sum::<f64>() / p.test.mesh.faces.len() as f64;
+    let short = settle_map(&p.test, &p.reference, &start, &e, 0.5 * edge).unwrap();
+    assert!(start.iter().zip(&short).all(|(&a, &b)| moved(a, b) <= 0.5 * edge + 1e-12));
+    assert!(start.iter().zip(&round).any(|(&a, &b)| moved(a, b) > 0.5 * edge), "the round moved nothing far");
+    assert_ne!(short, round);
+    let err = settle_map(&p.test, &p.reference, &start, &e, f64::NAN).unwrap_err().to_string();
+    assert!(err.contains("settle"), "{err}");
 }
 
 #[test]

@@ -253,6 +253,10 @@ pub struct EvalArgs {
     /// Basis functions carrying the extrinsic refinement's deformation.
     #[arg(long, default_value_t = 200, value_name = "K")]
     pub extrinsic_k: usize,
+    /// The settling round after the choice and after a relay's or a vote's map reaches the
+    /// reference: how far (× √area) it may move an image (`regularizer::settle_map`; 0: off).
+    #[arg(long, default_value_t = shapeforest::regularizer::SETTLE_REACH, value_name = "R")]
+    pub settle_reach: f64,
 }
 
 impl EvalArgs {
@@ -277,6 +281,7 @@ impl EvalArgs {
                 grown_extrinsic: !self.no_grown_extrinsic,
                 ..Default::default()
             }),
+            settle: (self.settle_reach > 0.0).then_some(self.settle_reach),
             ..Default::default()
         }
     }

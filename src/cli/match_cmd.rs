@@ -363,6 +363,19 @@ pub fn run(args: MatchArgs) -> Result<()> {
     }
     let mut prepare_s = t0.elapsed().as_secs_f64();
     let mut spectrum_ref_s = 0.0;
+    // A shape to regularise onto, prepared (its spectra and ZoomOut basis), and the seconds of
+    // its spectra and of the preparation.
+    let prepare_onto = |mesh: Arc<Mesh>, path: &Path| -> Result<(PreparedShape, f64, f64)> {
+        let t0 = Instant::now();
+        let (spectrum, zoomout) = solve(&mesh, path)?;
+        let spectrum_s = t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
+        let mut prepared = PreparedShape::new(mesh, Arc::new(spectrum), reg.heat)?;
+        if let Some(z) = zoomout {
+            prepared = prepared.with_zoomout_spectrum(Arc::new(z))?;
+        }
+        Ok((prepared, spectrum_s, t0.elapsed().as_secs_f64()))
+    };
     let mut onto_shapes: Vec<OntoShape<'_>> = Vec::new();
     for onto in &ontos {
         let t0 = Instant::now();
@@ -381,17 +394,15 @@ pub fn run(args: MatchArgs) -> Result<()> {
                 (relay.mesh.clone(), relay.path.as_path(), relay_symmetry, Some(to_reference))
             }
         };
-        let (onto_spectrum, onto_zoomout) = solve(&onto_mesh, onto_path)?;
+        // The label maps count with the shape's spectrum.
         spectrum_ref_s += t0.elapsed().as_secs_f64();
+        let (mut prepared, spectrum_s, preparation_s) = prepare_onto(onto_mesh, onto_path)?;
+        spectrum_ref_s += spectrum_s;
         let t0 = Instant::now();
-        let mut prepared = PreparedShape::new(onto_mesh, Arc::new(onto_spectrum), reg.heat)?;
-        if let Some(rp) = onto_zoomout {
-            prepared = prepared.with_zoomout_spectrum(Arc::new(rp))?;
-        }
         if let Some(s) = onto_symmetry {
             prepared = prepared.with_symmetry(s.into())?;
         }
-        prepare_s += t0.elapsed().as_secs_f64();
+        prepare_s += preparation_s + t0.elapsed().as_secs_f64();
         let onto_table = match onto {
             Some(relay) => Some(relay.table.as_slice()),
             None => table.as_deref(),
@@ -399,6 +410,20 @@ pub fn run(args: MatchArgs) -> Result<()> {
         onto_shapes.push(OntoShape { prepared, table: onto_table, to_reference });
     }
     let onto_prepared = &onto_shapes[0].prepared;
+    // A map carried from a relay or voted is settled onto the reference (`DenseMap::settled`),
+    // which needs the reference prepared when it is not among the shapes regularised onto.
+    let settles = args.to.is_none()
+        && (ontos.len() > 1 || ontos[0].is_some())
+        && reg.zoomout.is_some_and(|z| z.settle.is_some() && z.extrinsic.is_some());
+    let settle_reference = if settles && ontos.iter().all(Option::is_some) {
+        let (prepared, spectrum_s, preparation_s) =
+            prepare_onto(reference.clone(), args.reference.as_path())?;
+        spectrum_ref_s += spectrum_s;
+        prepare_s += preparation_s;
+        Some(prepared)
+    } else {
+        None
+    };
     let t0 = Instant::now();
     // With --to: the target scan's spectrum, prediction and preparation count in this stage.
     // `dense`: the regularisation the report's quality fields describe; `map`: the map written.
@@ -445,7 +470,14 @@ pub fn run(args: MatchArgs) -> Result<()> {
                 })
                 .collect::<Result<Vec<_>>>()?;
             let others = maps.split_off(1);
-            let dense = maps.remove(0).voted(&others, &reference)?;
+            let mut dense = maps.remove(0).voted(&others, &reference)?;
+            if settles {
+                let onto_reference =
+                    onto_shapes.iter().find(|o| o.to_reference.is_none()).map(|o| &o.prepared);
+                if let Some(r) = settle_reference.as_ref().or(onto_reference) {
+                    dense = dense.settled(&test, r, &reg)?;
+                }
+            }
             let map = part.extend(&scan, dense.map.clone());
             (dense, map, "the map onto the reference", None)
         }

@@ -748,7 +748,17 @@ pub fn run_protocol(
         let target = targets[0];
         let others: Vec<DenseMap> =
             targets[1..].iter().map(|&t| regularize_onto(t, &prediction)).collect::<Result<_, _>>()?;
-        let dense = regularize_onto(target, &prediction)?.voted(&others, &ref_prepared.mesh)?;
+        // A carried or voted map did not end with a refinement onto the reference: settled onto it.
+        let settle = |dense: DenseMap, carried_or_voted: bool| -> Result<DenseMap, EvalError> {
+            if !carried_or_voted {
+                return Ok(dense);
+            }
+            Ok(dense.settled(&test_prepared, ref_prepared, &params.regularizer)?)
+        };
+        let dense = settle(
+            regularize_onto(target, &prediction)?.voted(&others, &ref_prepared.mesh)?,
+            target != reference || !others.is_empty(),
+        )?;
         timings.regularize_s = t0.elapsed().as_secs_f64();
 
         let baseline = if params.skip_baseline {
@@ -760,7 +770,7 @@ pub fn run_protocol(
             let knn_prediction = knn.predict(&test_prepared.spectrum, k)?;
             timings.knn_predict_s = t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
-            let knn_dense = regularize_onto(target, &knn_prediction)?;
+            let knn_dense = settle(regularize_onto(target, &knn_prediction)?, target != reference)?;
             timings.knn_regularize_s = t0.elapsed().as_secs_f64();
             Some((knn_prediction, knn_dense))
         };

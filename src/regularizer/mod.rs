@@ -38,7 +38,7 @@ mod smoothing;
 
 pub use error::RegularizerError;
 use error::RegularizerError as Error;
-pub use extrinsic::{refine_extrinsic, ExtrinsicParams};
+pub use extrinsic::{refine_extrinsic, settle_map, ExtrinsicParams, SETTLE_REACH};
 pub use flip::{
     map_orientation, smoothed_orientation, symmetry_from_pairs, unflip, unflip_rounds, MapOrientation, Unflip,
 };
@@ -259,6 +259,11 @@ pub struct ZoomOutParams {
     /// Default on.
     #[serde(default)]
     pub select: Option<MapSelection>,
+    /// After the choice (and after a map is carried to the reference from a relay or voted),
+    /// one more round of the extrinsic step, each image moved at most this far (× the
+    /// reference's `√area`; [`settle_map`]); `None`: off. Default [`SETTLE_REACH`].
+    #[serde(default = "ZoomOutParams::settle_reach")]
+    pub settle: Option<f64>,
     /// First and final basis sizes of the partial ZoomOut of an open part
     /// ([`refine_zoomout_partial`]), whose maps are coarser. Default (20, 100).
     #[serde(default = "ZoomOutParams::partial_schedule")]
@@ -268,6 +273,10 @@ pub struct ZoomOutParams {
 impl ZoomOutParams {
     fn partial_schedule() -> (usize, usize) {
         (20, 100)
+    }
+
+    fn settle_reach() -> Option<f64> {
+        Some(SETTLE_REACH)
     }
 
     /// The schedule `(k_start, k_final)` actually used with bases of `available` eigenpairs:
@@ -296,6 +305,7 @@ impl Default for ZoomOutParams {
             check_samples: 0,
             extrinsic: Some(ExtrinsicParams::default()),
             select: Some(MapSelection::default()),
+            settle: Self::settle_reach(),
             partial: Self::partial_schedule(),
         }
     }
@@ -1042,6 +1052,9 @@ fn refine_with(
             sharper,
             select,
         ));
+    }
+    if let (Some(reach), Some(e), Some(chosen), false) = (z.settle, &z.extrinsic, &refined, partial) {
+        refined = Some(settle_map(test, reference, chosen, e, reach)?);
     }
     Ok(refined)
 }

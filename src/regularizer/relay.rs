@@ -19,7 +19,9 @@
 
 use rayon::prelude::*;
 
-use super::{DenseMap, RegularizerError as Error};
+use super::{
+    partial_area_ratio, settle_map, DenseMap, PreparedShape, RegularizerError as Error, RegularizerParams,
+};
 use crate::forest::Prediction;
 use crate::geodesic::farthest_point_sampling_euclidean;
 use crate::mesh::{norm, sub, Mesh};
@@ -213,6 +215,28 @@ impl DenseMap {
             self.grown_map = Some(grown);
         }
         self.map = map;
+        Ok(self)
+    }
+}
+
+impl DenseMap {
+    /// This map's final map settled onto `reference` ([`settle_map`] with `params`' ZoomOut
+    /// settings), for a map that did not end with a refinement onto it: one carried from a relay
+    /// ([`DenseMap::carried`]; the carry through the labels moves images by about an edge) or
+    /// voted ([`DenseMap::voted`]; the vote switches between maps). Unchanged when ZoomOut, its
+    /// extrinsic step or the settling is off, or when the test shape is an open part refined by
+    /// the partial ZoomOut.
+    pub fn settled(
+        mut self,
+        test: &PreparedShape,
+        reference: &PreparedShape,
+        params: &RegularizerParams,
+    ) -> Result<Self, Error> {
+        let Some(z) = &params.zoomout else { return Ok(self) };
+        let partial = params.partial_zoomout && partial_area_ratio(test, reference).is_some();
+        if let (Some(reach), Some(e), false) = (z.settle, &z.extrinsic, partial) {
+            self.map = settle_map(test, reference, &self.map, e, reach)?;
+        }
         Ok(self)
     }
 }
