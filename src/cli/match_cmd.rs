@@ -77,6 +77,11 @@ pub struct MatchArgs {
     /// mean error ×100 with the default 200; 1.80 with the refinement of before, 20 → 100).
     #[arg(long, default_value_t = 200, value_name = "K")]
     pub zoomout_k: usize,
+    /// With the ZoomOut refinement: how far (× √area) its last, settling round may move an
+    /// image, after the choice and after a relay's or a vote's map reaches the reference
+    /// (`regularizer::settle_map`; README, "Settling"; 0: no settling round).
+    #[arg(long, default_value_t = shapeforest::regularizer::SETTLE_REACH, value_name = "R")]
+    pub settle_reach: f64,
     /// A labelled training shape in another pose, with its label map (as --reference-labels);
     /// repeatable. The scan is regularised onto the one among them and the reference whose pose
     /// is nearest its own, and the map carried back to the reference through the labels
@@ -288,7 +293,11 @@ pub fn run(args: MatchArgs) -> Result<()> {
     };
     let reg = RegularizerParams {
         zoomout: (args.zoomout || (args.to.is_some() && !args.no_zoomout)).then(|| {
-            shapeforest::regularizer::ZoomOutParams { k_final: args.zoomout_k, ..Default::default() }
+            shapeforest::regularizer::ZoomOutParams {
+                k_final: args.zoomout_k,
+                settle: (args.settle_reach > 0.0).then_some(args.settle_reach),
+                ..Default::default()
+            }
         }),
         ..Default::default()
     };
