@@ -222,3 +222,16 @@ fn map_selection_settings_are_checked_and_old_files_get_the_defaults() {
     let old: MapSelection = serde_json::from_str(r#"{"coarse": [20, 100], "sigma": 0.03}"#).unwrap();
     assert_eq!(old, MapSelection { sigma: 0.03, ..Default::default() });
 }
+
+#[test]
+fn the_command_line_refuses_a_settling_reach_that_is_not_a_distance() {
+    for (command, reach) in [("eval", "-1"), ("match", "nan"), ("eval", "inf")] {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_shapeforest"))
+            .args([command, &format!("--settle-reach={reach}")])
+            .output()
+            .unwrap();
+        assert!(!o.status.success(), "{command} --settle-reach {reach} was accepted");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("--settle-reach") && err.contains("finite number ≥ 0"), "{err}");
+    }
+}

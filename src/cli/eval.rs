@@ -255,7 +255,7 @@ pub struct EvalArgs {
     pub extrinsic_k: usize,
     /// The settling round after the choice and after a relay's or a vote's map reaches the
     /// reference: how far (× √area) it may move an image (`regularizer::settle_map`; 0: off).
-    #[arg(long, default_value_t = shapeforest::regularizer::SETTLE_REACH, value_name = "R")]
+    #[arg(long, default_value_t = shapeforest::regularizer::SETTLE_REACH, value_name = "R", value_parser = parse_reach)]
     pub settle_reach: f64,
 }
 
@@ -321,6 +321,14 @@ pub(super) fn parse_augment(text: &str) -> Result<Perturbation, String> {
 }
 
 /// `N:R` of `--holes`.
+/// A reach (× √area): a finite number ≥ 0.
+pub(super) fn parse_reach(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(r) if r >= 0.0 && r.is_finite() => Ok(r),
+        _ => Err(format!("expected a finite number ≥ 0 (× √area), got {text:?}")),
+    }
+}
+
 pub(super) fn parse_holes(text: &str) -> Result<Perturbation, String> {
     let (n, r) = text.split_once(':').ok_or_else(|| format!("expected N:R (e.g. 5:0.015), got {text:?}"))?;
     let count = n.trim().parse().map_err(|_| format!("the number of holes {n:?} is not a whole number"))?;

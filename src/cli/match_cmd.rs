@@ -80,7 +80,7 @@ pub struct MatchArgs {
     /// With the ZoomOut refinement: how far (× √area) its last, settling round may move an
     /// image, after the choice and after a relay's or a vote's map reaches the reference
     /// (`regularizer::settle_map`; README, "Settling"; 0: no settling round).
-    #[arg(long, default_value_t = shapeforest::regularizer::SETTLE_REACH, value_name = "R")]
+    #[arg(long, default_value_t = shapeforest::regularizer::SETTLE_REACH, value_name = "R", value_parser = super::eval::parse_reach)]
     pub settle_reach: f64,
     /// A labelled training shape in another pose, with its label map (as --reference-labels);
     /// repeatable. The scan is regularised onto the one among them and the reference whose pose

@@ -1009,6 +1009,16 @@ pub(super) fn check_map_onto(
     Ok(())
 }
 
+/// Whether `test` is refined onto `reference` by the partial ZoomOut (an open part of it), which
+/// skips the extrinsic step, the choice and the settling round.
+pub(super) fn refines_partially(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    params: &RegularizerParams,
+) -> bool {
+    params.partial_zoomout && partial_area_ratio(test, reference).is_some()
+}
+
 fn refine_with(
     test: &PreparedShape,
     reference: &PreparedShape,
@@ -1018,7 +1028,7 @@ fn refine_with(
     params: &RegularizerParams,
 ) -> Result<Option<Vec<usize>>, Error> {
     // An open part of the reference gets the partial (rectangular) ZoomOut.
-    let partial = params.partial_zoomout && partial_area_ratio(test, reference).is_some();
+    let partial = refines_partially(test, reference, params);
     let zoom = |m: &[usize]| {
         if partial {
             refine_zoomout_partial(test, reference, m, z)

@@ -20,7 +20,7 @@
 use rayon::prelude::*;
 
 use super::{
-    partial_area_ratio, settle_map, DenseMap, PreparedShape, RegularizerError as Error, RegularizerParams,
+    refines_partially, settle_map, DenseMap, PreparedShape, RegularizerError as Error, RegularizerParams,
 };
 use crate::forest::Prediction;
 use crate::geodesic::farthest_point_sampling_euclidean;
@@ -217,9 +217,7 @@ impl DenseMap {
         self.map = map;
         Ok(self)
     }
-}
 
-impl DenseMap {
     /// This map's final map settled onto `reference` ([`settle_map`] with `params`' ZoomOut
     /// settings), for a map that did not end with a refinement onto it: one carried from a relay
     /// ([`DenseMap::carried`]; the carry through the labels moves images by about an edge) or
@@ -233,8 +231,9 @@ impl DenseMap {
         params: &RegularizerParams,
     ) -> Result<Self, Error> {
         let Some(z) = &params.zoomout else { return Ok(self) };
-        let partial = params.partial_zoomout && partial_area_ratio(test, reference).is_some();
-        if let (Some(reach), Some(e), false) = (z.settle, &z.extrinsic, partial) {
+        if let (Some(reach), Some(e), false) =
+            (z.settle, &z.extrinsic, refines_partially(test, reference, params))
+        {
             self.map = settle_map(test, reference, &self.map, e, reach)?;
         }
         Ok(self)
