@@ -320,7 +320,6 @@ pub(super) fn parse_augment(text: &str) -> Result<Perturbation, String> {
     Err(format!("expected partial-view, holes:N:R or crop:R, got {text:?}"))
 }
 
-/// `N:R` of `--holes`.
 /// A reach (× √area): a finite number ≥ 0.
 pub(super) fn parse_reach(text: &str) -> Result<f64, String> {
     match text.trim().parse::<f64>() {
@@ -329,6 +328,7 @@ pub(super) fn parse_reach(text: &str) -> Result<f64, String> {
     }
 }
 
+/// `N:R` of `--holes`.
 pub(super) fn parse_holes(text: &str) -> Result<Perturbation, String> {
     let (n, r) = text.split_once(':').ok_or_else(|| format!("expected N:R (e.g. 5:0.015), got {text:?}"))?;
     let count = n.trim().parse().map_err(|_| format!("the number of holes {n:?} is not a whole number"))?;
