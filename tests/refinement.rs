@@ -9,8 +9,8 @@ use shapeforest::{
     eval::{geodesic_errors, ErrorSummary},
     geodesic::HeatParams,
     regularizer::{
-        refine_extrinsic, refine_zoomout, sample_cells, select_by_posterior, settle_map, ExtrinsicParams,
-        MapSelection, PreparedShape, ZoomOutParams, SETTLE_REACH,
+        local_rigid, refine_extrinsic, refine_zoomout, sample_cells, select_by_posterior, settle_map,
+        ExtrinsicParams, LocalRigidParams, MapSelection, PreparedShape, ZoomOutParams, SETTLE_REACH,
     },
     spectral::{compute_spectrum, SpectrumParams},
     synth::{creature_family, CreatureParams},
@@ -126,6 +126,40 @@ fn settling_sharpens_a_map_and_moves_no_image_beyond_its_reach() {
 }
 
 #[test]
+fn the_local_rigid_fit_sharpens_a_jittered_map_and_leaves_a_right_one() {
+    let p = pair();
+    let start = off_by_a_ring(&p, 9);
+    let params = LocalRigidParams::default();
+    let fitted = local_rigid(&p.test.mesh, &p.reference.mesh, &start, &params).unwrap();
+    let (before, after) = (summary(&p, &start), summary(&p, &fitted));
+    eprintln!("off by a ring: {before:?}\nlocal rigid fit: {after:?}");
+    assert!(after.mean < 0.5 * before.mean, "{after:?} vs start {before:?}");
+    // No image moves farther than the reach (in mean edge lengths of the reference).
+    let scale = 1.0 / p.reference.mesh.surface_area().sqrt();
+    let pos = &p.reference.mesh.vertices;
+    let dist =
+        |a: usize, b: usize| (0..3).map(|k| (pos[a][k] - pos[b][k]).powi(2)).sum::<f64>().sqrt() * scale;
+    let edge = p
+        .reference
+        .mesh
+        .faces
+        .iter()
+        .map(|f| dist(f[0], f[1]) + dist(f[1], f[2]) + dist(f[2], f[0]))
+        .sum::<f64>()
+        / (3 * p.reference.mesh.faces.len()) as f64;
+    assert!(start.iter().zip(&fitted).all(|(&a, &b)| dist(a, b) <= params.reach * edge + 1e-12));
+    // The true map (the shapes share their vertices) is left nearly as it is.
+    let identity: Vec<usize> = (0..p.n).collect();
+    let kept = local_rigid(&p.test.mesh, &p.reference.mesh, &identity, &params).unwrap();
+    let same = kept.iter().enumerate().filter(|&(v, &r)| v == r).count();
+    assert!(same * 100 >= p.n * 98, "{same} of {} images kept", p.n);
+    let err = local_rigid(&p.test.mesh, &p.reference.mesh, &start, &LocalRigidParams { fit: -1.0, ..params })
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("fit"), "{err}");
+}
+
+#[test]
 fn extrinsic_settings_are_checked() {
     let p = pair();
     let identity: Vec<usize> = (0..p.n).collect();
@@ -224,14 +258,20 @@ fn map_selection_settings_are_checked_and_old_files_get_the_defaults() {
 }
 
 #[test]
-fn the_command_line_refuses_a_settling_reach_that_is_not_a_distance() {
-    for (command, reach) in [("eval", "-1"), ("match", "nan"), ("eval", "inf")] {
+fn the_command_line_refuses_a_reach_or_radius_that_is_not_a_distance() {
+    for (command, flag, reach) in [
+        ("eval", "--settle-reach", "-1"),
+        ("match", "--settle-reach", "nan"),
+        ("eval", "--settle-reach", "inf"),
+        ("eval", "--rigid-radius", "-0.05"),
+        ("match", "--rigid-radius", "nan"),
+    ] {
         let o = std::process::Command::new(env!("CARGO_BIN_EXE_shapeforest"))
-            .args([command, &format!("--settle-reach={reach}")])
+            .args([command, &format!("{flag}={reach}")])
             .output()
             .unwrap();
-        assert!(!o.status.success(), "{command} --settle-reach {reach} was accepted");
+        assert!(!o.status.success(), "{command} {flag} {reach} was accepted");
         let err = String::from_utf8_lossy(&o.stderr);
-        assert!(err.contains("--settle-reach") && err.contains("finite number ≥ 0"), "{err}");
+        assert!(err.contains(flag) && err.contains("finite number ≥ 0"), "{err}");
     }
 }

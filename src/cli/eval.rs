@@ -257,6 +257,10 @@ pub struct EvalArgs {
     /// reference: how far (× √area) it may move an image (`regularizer::settle_map`; 0: off).
     #[arg(long, default_value_t = shapeforest::regularizer::SETTLE_REACH, value_name = "R", value_parser = parse_reach)]
     pub settle_reach: f64,
+    /// The last step of the refinement: each image re-placed by the rigid fit of the images of
+    /// its neighbours within this radius (× √area; `regularizer::local_rigid`; 0: off).
+    #[arg(long, default_value_t = shapeforest::regularizer::LocalRigidParams::default().radius, value_name = "R", value_parser = parse_reach)]
+    pub rigid_radius: f64,
 }
 
 impl EvalArgs {
@@ -282,6 +286,7 @@ impl EvalArgs {
                 ..Default::default()
             }),
             settle: (self.settle_reach > 0.0).then_some(self.settle_reach),
+            rigid: rigid_params(self.rigid_radius),
             ..Default::default()
         }
     }
@@ -326,6 +331,11 @@ pub(super) fn parse_reach(text: &str) -> Result<f64, String> {
         Ok(r) if r >= 0.0 && r.is_finite() => Ok(r),
         _ => Err(format!("expected a finite number ≥ 0 (× √area), got {text:?}")),
     }
+}
+
+/// The local rigid fit of `--rigid-radius R` (0: off).
+pub(super) fn rigid_params(radius: f64) -> Option<shapeforest::regularizer::LocalRigidParams> {
+    (radius > 0.0).then(|| shapeforest::regularizer::LocalRigidParams { radius, ..Default::default() })
 }
 
 /// `N:R` of `--holes`.

@@ -82,6 +82,11 @@ pub struct MatchArgs {
     /// (`regularizer::settle_map`; README, "Settling"; 0: no settling round).
     #[arg(long, default_value_t = shapeforest::regularizer::SETTLE_REACH, value_name = "R", value_parser = super::eval::parse_reach)]
     pub settle_reach: f64,
+    /// With the ZoomOut refinement: its last step re-places each image by the rigid fit of the
+    /// images of its neighbours within this radius (× √area; `regularizer::local_rigid`;
+    /// README, "Local rigid fit"; 0: off).
+    #[arg(long, default_value_t = shapeforest::regularizer::LocalRigidParams::default().radius, value_name = "R", value_parser = super::eval::parse_reach)]
+    pub rigid_radius: f64,
     /// A labelled training shape in another pose, with its label map (as --reference-labels);
     /// repeatable. The scan is regularised onto the one among them and the reference whose pose
     /// is nearest its own, and the map carried back to the reference through the labels
@@ -296,6 +301,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
             shapeforest::regularizer::ZoomOutParams {
                 k_final: args.zoomout_k,
                 settle: (args.settle_reach > 0.0).then_some(args.settle_reach),
+                rigid: super::eval::rigid_params(args.rigid_radius),
                 ..Default::default()
             }
         }),
@@ -423,7 +429,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
     // which needs the reference prepared when it is not among the shapes regularised onto.
     let settles = args.to.is_none()
         && (ontos.len() > 1 || ontos[0].is_some())
-        && reg.zoomout.is_some_and(|z| z.settle.is_some() && z.extrinsic.is_some());
+        && reg.zoomout.is_some_and(|z| (z.settle.is_some() && z.extrinsic.is_some()) || z.rigid.is_some());
     let settle_reference = if settles && ontos.iter().all(Option::is_some) {
         let (prepared, spectrum_s, preparation_s) =
             prepare_onto(reference.clone(), args.reference.as_path())?;

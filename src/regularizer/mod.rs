@@ -33,6 +33,7 @@ mod pair;
 mod partial;
 mod refine;
 mod relay;
+mod rigid;
 mod scan;
 mod smoothing;
 
@@ -54,6 +55,7 @@ pub use partial::{
 };
 pub use refine::{cell_balls, map_distortion, refine_zoomout, sample_cells, select_by_posterior};
 pub use relay::{nearest_pose, poses_by_nearness, through_labels, vote_maps, POSE_SAMPLES};
+pub use rigid::{local_rigid, LocalRigidParams};
 pub use scan::ScanPart;
 
 use faer::Mat;
@@ -264,6 +266,10 @@ pub struct ZoomOutParams {
     /// reference's `√area`; [`settle_map`]); `None`: off. Default [`SETTLE_REACH`].
     #[serde(default = "ZoomOutParams::settle_reach")]
     pub settle: Option<f64>,
+    /// Last, every image re-placed by the rigid fit of its neighbourhood's images
+    /// ([`local_rigid`]; `None`: off). Default on.
+    #[serde(default = "ZoomOutParams::rigid_default")]
+    pub rigid: Option<LocalRigidParams>,
     /// First and final basis sizes of the partial ZoomOut of an open part
     /// ([`refine_zoomout_partial`]), whose maps are coarser. Default (20, 100).
     #[serde(default = "ZoomOutParams::partial_schedule")]
@@ -277,6 +283,10 @@ impl ZoomOutParams {
 
     fn settle_reach() -> Option<f64> {
         Some(SETTLE_REACH)
+    }
+
+    fn rigid_default() -> Option<LocalRigidParams> {
+        Some(LocalRigidParams::default())
     }
 
     /// The schedule `(k_start, k_final)` actually used with bases of `available` eigenpairs:
@@ -306,6 +316,7 @@ impl Default for ZoomOutParams {
             extrinsic: Some(ExtrinsicParams::default()),
             select: Some(MapSelection::default()),
             settle: Self::settle_reach(),
+            rigid: Self::rigid_default(),
             partial: Self::partial_schedule(),
         }
     }
@@ -1065,6 +1076,9 @@ fn refine_with(
     }
     if let (Some(reach), Some(e), Some(chosen), false) = (z.settle, &z.extrinsic, &refined, partial) {
         refined = Some(settle_map(test, reference, chosen, e, reach)?);
+    }
+    if let (Some(rigid), Some(last), false) = (&z.rigid, &refined, partial) {
+        refined = Some(local_rigid(&test.mesh, &reference.mesh, last, rigid)?);
     }
     Ok(refined)
 }
