@@ -72,6 +72,34 @@ impl LocalRigidParams {
 /// a rotation, and a few more keep one stray image from turning it.
 const MIN_NEIGHBOURS: usize = 6;
 
+/// Into `out`: the vertices connected to `centre` through mesh edges (`adjacency`: offsets and
+/// neighbours, [`face_neighbour_lists`]) without leaving the ball of squared radius `r2` around
+/// it, `centre` first. `seen` marks the vertices found with `stamp` (a value that it holds for
+/// no vertex yet, e.g. the index of the vertex the ball is made for).
+fn connected_ball(
+    points: &[Vector3<f64>],
+    (offsets, neighbours): (&[usize], &[usize]),
+    centre: usize,
+    r2: f64,
+    (seen, stamp): (&mut [u32], u32),
+    out: &mut Vec<usize>,
+) {
+    out.clear();
+    out.push(centre);
+    seen[centre] = stamp;
+    let mut head = 0;
+    while head < out.len() {
+        let u = out[head];
+        head += 1;
+        for &w in &neighbours[offsets[u]..offsets[u + 1]] {
+            if seen[w] != stamp && (points[w] - points[centre]).norm_squared() <= r2 {
+                seen[w] = stamp;
+                out.push(w);
+            }
+        }
+    }
+}
+
 /// `map` (test vertex → reference vertex) with every image re-placed by the rigid fit of its
 /// neighbourhood's images (see the module documentation).
 pub fn local_rigid(
@@ -123,21 +151,8 @@ pub fn local_rigid(
             .map_init(
                 || (vec![u32::MAX; n], Vec::<usize>::new(), vec![u32::MAX; nr], Vec::<usize>::new()),
                 |(seen, ball, seen_r, near), v| {
-                    // The neighbourhood: breadth-first through edges, inside the ball.
-                    ball.clear();
-                    ball.push(v);
-                    seen[v] = v as u32;
-                    let mut head = 0;
-                    while head < ball.len() {
-                        let u = ball[head];
-                        head += 1;
-                        for &w in &neighbours[offsets[u]..offsets[u + 1]] {
-                            if seen[w] != v as u32 && (xt[w] - xt[v]).norm_squared() <= r2 {
-                                seen[w] = v as u32;
-                                ball.push(w);
-                            }
-                        }
-                    }
+                    let stamp = v as u32;
+                    connected_ball(&xt, (&offsets, &neighbours), v, r2, (seen, stamp), ball);
                     if ball.len() < MIN_NEIGHBOURS {
                         return current[v];
                     }
@@ -177,27 +192,19 @@ pub fn local_rigid(
                     }
                     // The reference vertex nearest that point among those connected to the
                     // image within the reach.
-                    let from = current[v];
-                    let (mut best, mut best_d) = (from, (xr[from] - p).norm_squared());
-                    near.clear();
-                    near.push(from);
-                    seen_r[from] = v as u32;
-                    let mut head = 0;
-                    while head < near.len() {
-                        let u = near[head];
-                        head += 1;
-                        let d = (xr[u] - p).norm_squared();
-                        if d < best_d {
-                            (best, best_d) = (u, d);
-                        }
-                        for &w in &r_neighbours[r_offsets[u]..r_offsets[u + 1]] {
-                            if seen_r[w] != v as u32 && (xr[w] - xr[from]).norm_squared() <= reach2 {
-                                seen_r[w] = v as u32;
-                                near.push(w);
-                            }
-                        }
-                    }
-                    best
+                    connected_ball(
+                        &xr,
+                        (&r_offsets, &r_neighbours),
+                        current[v],
+                        reach2,
+                        (seen_r, stamp),
+                        near,
+                    );
+                    let distance = |u: &usize| (xr[*u] - p).norm_squared();
+                    near.iter()
+                        .copied()
+                        .min_by(|a, b| distance(a).total_cmp(&distance(b)))
+                        .unwrap_or(current[v])
                 },
             )
             .collect();
