@@ -1074,11 +1074,27 @@ fn refine_with(
             select,
         ));
     }
-    if let (Some(reach), Some(e), Some(chosen), false) = (z.settle, &z.extrinsic, &refined, partial) {
-        refined = Some(settle_map(test, reference, chosen, e, reach)?);
+    if partial {
+        return Ok(refined);
     }
-    if let (Some(rigid), Some(last), false) = (&z.rigid, &refined, partial) {
-        refined = Some(local_rigid(&test.mesh, &reference.mesh, last, rigid)?);
+    refined.map(|chosen| finish_refinement(test, reference, chosen, z)).transpose()
+}
+
+/// The refinement's last steps on `map`: the settling round ([`settle_map`], when it and the
+/// extrinsic step are on), then the local rigid fit ([`local_rigid`], when on). Run at the end of
+/// every refinement of a complete scan and again on a map that reached the reference by a carry
+/// or a vote ([`DenseMap::settled`]).
+pub(super) fn finish_refinement(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    mut map: Vec<usize>,
+    z: &ZoomOutParams,
+) -> Result<Vec<usize>, Error> {
+    if let (Some(reach), Some(e)) = (z.settle, &z.extrinsic) {
+        map = settle_map(test, reference, &map, e, reach)?;
     }
-    Ok(refined)
+    if let Some(rigid) = &z.rigid {
+        map = local_rigid(&test.mesh, &reference.mesh, &map, rigid)?;
+    }
+    Ok(map)
 }

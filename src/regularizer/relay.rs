@@ -20,7 +20,7 @@
 use rayon::prelude::*;
 
 use super::{
-    local_rigid, refines_partially, settle_map, DenseMap, PreparedShape, RegularizerError as Error,
+    finish_refinement, refines_partially, DenseMap, PreparedShape, RegularizerError as Error,
     RegularizerParams,
 };
 use crate::forest::Prediction;
@@ -219,12 +219,13 @@ impl DenseMap {
         Ok(self)
     }
 
-    /// This map's final map settled onto `reference` ([`settle_map`] with `params`' ZoomOut
-    /// settings, then [`local_rigid`]), for a map that did not end with a refinement onto it: one
-    /// carried from a relay ([`DenseMap::carried`]; the carry through the labels moves images by
-    /// about an edge) or voted ([`DenseMap::voted`]; the vote switches between maps). Each step
-    /// is skipped when off (the settling also when the extrinsic step is); the map is unchanged
-    /// without ZoomOut or when the test shape is an open part refined by the partial ZoomOut.
+    /// This map's final map settled onto `reference` ([`super::settle_map`] with `params`' ZoomOut
+    /// settings, then [`super::local_rigid`]), for a map that did not end with a refinement onto
+    /// it: one carried from a relay ([`DenseMap::carried`]; the carry through the labels moves
+    /// images by about an edge) or voted ([`DenseMap::voted`]; the vote switches between maps).
+    /// Each step is skipped when off (the settling also when the extrinsic step is); the map is
+    /// unchanged without ZoomOut or when the test shape is an open part refined by the partial
+    /// ZoomOut.
     pub fn settled(
         mut self,
         test: &PreparedShape,
@@ -232,14 +233,8 @@ impl DenseMap {
         params: &RegularizerParams,
     ) -> Result<Self, Error> {
         let Some(z) = &params.zoomout else { return Ok(self) };
-        if refines_partially(test, reference, params) {
-            return Ok(self);
-        }
-        if let (Some(reach), Some(e)) = (z.settle, &z.extrinsic) {
-            self.map = settle_map(test, reference, &self.map, e, reach)?;
-        }
-        if let Some(rigid) = &z.rigid {
-            self.map = local_rigid(&test.mesh, &reference.mesh, &self.map, rigid)?;
+        if !refines_partially(test, reference, params) {
+            self.map = finish_refinement(test, reference, std::mem::take(&mut self.map), z)?;
         }
         Ok(self)
     }
