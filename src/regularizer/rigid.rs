@@ -28,7 +28,11 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::RegularizerError as Error;
-use crate::mesh::{face_neighbour_lists, Mesh};
+use crate::{
+    geodesic::mean_edge_length,
+    mesh::{face_neighbour_lists, Mesh},
+    spectral::vertex_lumped_mass,
+};
 
 /// Settings of [`local_rigid`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -123,24 +127,11 @@ pub fn local_rigid(
     let (xt, xr) = (unit(test), unit(reference));
     // Vertex areas (a third of each adjacent face's) weigh the fit, so that a densely
     // triangulated patch does not outweigh a coarse one.
-    let mut weight = vec![0.0; n];
-    for (f, a) in test.faces.iter().zip(test.face_areas()) {
-        for &v in f {
-            weight[v] += a / 3.0;
-        }
-    }
+    let weight = vertex_lumped_mass(test);
     let (offsets, neighbours) = face_neighbour_lists(&test.faces, n);
     let (r_offsets, r_neighbours) = face_neighbour_lists(&reference.faces, nr);
-    let edge = {
-        let (mut sum, mut count) = (0.0, 0usize);
-        for f in &reference.faces {
-            for (a, b) in [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])] {
-                sum += (xr[a] - xr[b]).norm();
-                count += 1;
-            }
-        }
-        sum / count.max(1) as f64
-    };
+    // The reference's mean edge length, in the units of `xr`.
+    let edge = mean_edge_length(reference) / reference.surface_area().max(f64::MIN_POSITIVE).sqrt();
     let r2 = params.radius * params.radius;
     let reach2 = (params.reach * edge).powi(2);
     let fit2 = (params.fit * edge).powi(2);
