@@ -156,6 +156,59 @@ fn relayed_and_voted_maps_are_carried_to_the_reference_and_do_not_lose_accuracy(
 }
 
 #[test]
+fn a_map_that_reads_as_mirrored_is_voted_with_the_next_nearest_poses() {
+    let fam = family(7);
+    let shapes: Vec<ProtocolShape> = fam
+        .shapes
+        .iter()
+        .enumerate()
+        .map(|(i, m)| ProtocolShape::identity(format!("s{i}"), Arc::new(m.clone())))
+        .collect();
+    let run = |trees: usize, doubt: Option<f64>| {
+        let params = ProtocolParams {
+            n_train: 5,
+            max_tests: Some(4),
+            eval_points: 300,
+            skip_baseline: true,
+            forest: RandomForest::params().n_trees(trees).seed(5),
+            doubt,
+            ..ProtocolParams::default()
+        };
+        run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap()
+    };
+    // Good maps of the clean family are not doubted: no extra cost.
+    for t in &run(6, ProtocolParams::default().doubt).tests {
+        let share = t.reversed_area.expect("measured with one vote");
+        assert!(share < 0.05 && t.votes.is_empty(), "s{}: {share} of the area reads as mirrored", t.test);
+    }
+    // A one-tree forest's maps are mirrored in places (0.5–1 % of the area).
+    let (never, always) = (run(1, None), run(1, Some(0.0)));
+    for t in &never.tests {
+        assert!(t.votes.is_empty(), "s{}: voted without doubt", t.test);
+    }
+    // Doubting any reversed area: exactly the maps with some are voted, with two training
+    // shapes other than the nearest pose and the test.
+    let mut doubted = 0;
+    for (t, one) in always.tests.iter().zip(&never.tests) {
+        let share = t.reversed_area.expect("measured with one vote");
+        assert_eq!(t.relay, one.relay, "s{}: the nearest pose is the same", t.test);
+        if share > 0.0 {
+            doubted += 1;
+            assert_eq!(t.votes.len(), 2, "s{}: {:?}", t.test, t.votes);
+            let nearest = t.relay.unwrap_or(t.reference);
+            assert!(t.votes.iter().all(|v| t.training.contains(v) && *v != nearest && *v != t.test));
+        } else {
+            assert!(t.votes.is_empty(), "s{}: voted without a reversed area", t.test);
+        }
+    }
+    let (c, _) = always.summary(Method::ForestRegularized);
+    let (d, _) = never.summary(Method::ForestRegularized);
+    println!("{doubted} doubted; with votes on doubt {c:?}\nnever {d:?}");
+    assert!(doubted > 0, "no map of the one-tree forest was doubted");
+    assert!(c.within_005 >= d.within_005 - 0.02, "voted on doubt {c:?} vs never {d:?}");
+}
+
+#[test]
 fn match_regularises_onto_the_relay_in_the_scans_pose_votes_and_writes_a_map_onto_the_reference() {
     use shapeforest::mesh::write_mesh;
     let dir = tempfile::tempdir().unwrap();
@@ -173,7 +226,7 @@ fn match_regularises_onto_the_relay_in_the_scans_pose_votes_and_writes_a_map_ont
     write_mesh(path("scan.off"), &fam.shapes[3].scaled(2.0)).unwrap();
     let labels: String = (0..n).map(|v| format!("{v}\n")).collect();
     std::fs::write(path("labels.txt"), &labels).unwrap();
-    let run = |relay_labels: &str, votes: &str| {
+    let run_with = |relay_labels: &str, votes: &str, extra: &[&str]| {
         common::bin()
             .args(["match", "--model"])
             .arg(&model)
@@ -190,9 +243,11 @@ fn match_regularises_onto_the_relay_in_the_scans_pose_votes_and_writes_a_map_ont
             .arg(path("s3.off"))
             .arg(path(relay_labels))
             .args(["--relay-votes", votes])
+            .args(extra)
             .output()
             .unwrap()
     };
+    let run = |relay_labels: &str, votes: &str| run_with(relay_labels, votes, &[]);
     let o = run("labels.txt", "1");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let stdout = String::from_utf8_lossy(&o.stdout);
@@ -215,6 +270,16 @@ fn match_regularises_onto_the_relay_in_the_scans_pose_votes_and_writes_a_map_ont
     };
     let near = near_home();
     assert!(near > 0.8, "only {:.1} % of the vertices within 0.05 (Euclidean) of home", 100.0 * near);
+    // With one vote the report says how much of the map onto the relay reads as mirrored: a
+    // good map, not doubted, voted with nothing.
+    let one: serde_json::Value = serde_json::from_str(&report).unwrap();
+    let share = one["reversed_area"].as_f64().expect("reversed_area measured with one vote");
+    assert!((0.0..0.05).contains(&share) && one["doubted"] == false, "{one}");
+    assert!(one["voted_with"].as_array().unwrap().is_empty(), "{one}");
+    // The doubt's limit is a share of the area.
+    let o = run_with("labels.txt", "1", &["--doubt-votes", "1.5"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("between 0 and 1"));
     // Three votes: the relay in the scan's pose voted with the two other shapes, no worse.
     let o = run("labels.txt", "3");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -224,6 +289,7 @@ fn match_regularises_onto_the_relay_in_the_scans_pose_votes_and_writes_a_map_ont
     let voted: Vec<&str> =
         report["voted_with"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
     assert_eq!(voted.len(), 2, "{voted:?}");
+    assert!(report["reversed_area"].is_null() && report["doubted"] == false, "{report}");
     assert!(voted.iter().any(|v| v.ends_with("ref.off")) && voted.iter().any(|v| v.ends_with("s2.off")));
     let voted_near = near_home();
     assert!(voted_near >= near - 0.02, "voted {voted_near:.3} vs nearest pose alone {near:.3}");

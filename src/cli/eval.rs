@@ -31,6 +31,7 @@ use shapeforest::{
         plot_curves_svg,
         protocol::{
             run_protocol, Method, ProtocolEvent, ProtocolParams, ProtocolReport, ProtocolShape, TestTimings,
+            DOUBT_REVERSED_AREA,
         },
         symmetry::{
             label_symmetry_from_mirrored_truth, MirroredTruth, SymmetricFeatures, SymmetryParams,
@@ -198,6 +199,11 @@ pub struct EvalArgs {
     /// regularisation).
     #[arg(long, default_value_t = 1, value_name = "N")]
     pub relay_votes: usize,
+    /// With one vote: a map that reads as mirrored on more than this fraction of the scan's area
+    /// (a mirrored limb; results.csv: reversed_area) is voted with the maps onto the next two
+    /// nearest poses (`ProtocolParams::doubt`; 0: never).
+    #[arg(long, default_value_t = DOUBT_REVERSED_AREA, value_name = "F", value_parser = parse_share)]
+    pub doubt_votes: f64,
     /// Anchor growth weighs each (vertex, anchor) distance by how far it can be from the
     /// scan's boundary (see `regularizer::pair_trust`).
     #[arg(long)]
@@ -323,6 +329,14 @@ pub(super) fn parse_augment(text: &str) -> Result<Perturbation, String> {
         return Ok(Perturbation::Crop { radius });
     }
     Err(format!("expected partial-view, holes:N:R or crop:R, got {text:?}"))
+}
+
+/// A share of an area: a number in [0, 1].
+pub(super) fn parse_share(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(f) if (0.0..=1.0).contains(&f) => Ok(f),
+        _ => Err(format!("expected a fraction between 0 and 1, got {text:?}")),
+    }
 }
 
 /// A reach (× √area): a finite number ≥ 0.
@@ -788,6 +802,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         diagnose: args.diagnose.then(|| diagnosis_variants(&args.regularizer_params(false))),
         relay: !args.no_relay,
         relay_votes: args.relay_votes,
+        doubt: (args.doubt_votes > 0.0).then_some(args.doubt_votes),
         ..ProtocolParams::default()
     };
     let n_labels = class.shapes[0].truth.len();
@@ -852,6 +867,25 @@ pub fn run(args: EvalArgs) -> Result<()> {
             println!(
                 "votes: each map voted per vertex with the maps onto the next {} nearest pose(s) (results.csv: voted_with)",
                 params.relay_votes - 1
+            );
+        } else if let Some(limit) = params.doubt {
+            let doubted: Vec<String> = report
+                .tests
+                .iter()
+                .filter(|t| !t.votes.is_empty())
+                .map(|t| {
+                    format!(
+                        "{} ({:.1} %)",
+                        report.shape_names[t.test],
+                        100.0 * t.reversed_area.unwrap_or(0.0)
+                    )
+                })
+                .collect();
+            println!(
+                "doubted maps (mirrored on more than {:.1} % of the area; voted with the next two nearest poses): {} \
+                 (results.csv: reversed_area, voted_with; --doubt-votes 0: never)",
+                100.0 * limit,
+                if doubted.is_empty() { "none".to_string() } else { doubted.join(", ") }
             );
         }
     }
@@ -1030,7 +1064,7 @@ fn write_point_errors(out: &Path, report: &ProtocolReport) -> Result<()> {
 
 fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usize) -> Result<()> {
     let mut csv = String::from(
-        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation,regularised_onto,voted_with\n",
+        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation,regularised_onto,voted_with,reversed_area\n",
     );
     for t in &report.tests {
         let scan = t.scan.as_deref().unwrap_or(&class.shapes[t.test].mesh);
@@ -1046,7 +1080,7 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
             let sy = m.symmetric.as_ref().map(|y| ErrorSummary::of(y));
             let _ = writeln!(
                 csv,
-                "{},{},{},{},{},{},{},{},{:.6},{:.4},{},{}",
+                "{},{},{},{},{},{},{},{},{:.6},{:.4},{},{},{}",
                 report.shape_names[t.test],
                 report.shape_names[t.reference],
                 m.method.name(),
@@ -1058,7 +1092,8 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
                 t.area_fraction,
                 orientation,
                 report.shape_names[t.relay.unwrap_or(t.reference)],
-                t.votes.iter().map(|&v| report.shape_names[v].as_str()).collect::<Vec<_>>().join(" ")
+                t.votes.iter().map(|&v| report.shape_names[v].as_str()).collect::<Vec<_>>().join(" "),
+                t.reversed_area.map_or(String::new(), |r| format!("{r:.4}")),
             );
         }
     }

@@ -26,13 +26,14 @@ use std::{
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use shapeforest::{
+    eval::protocol::DOUBT_VOTES,
     forest::{
         per_vertex_labels, read_label_map, read_per_label_rows, reference_table, Prediction, RandomForest,
     },
     mesh::{coordinate_colors, read_mesh, write_colored_ply, Mesh},
     regularizer::{
-        poses_by_nearness, regularize, regularize_pair, through_labels, PairParams, PreparedShape,
-        RegularizerParams, ScanPart,
+        poses_by_nearness, regularize, regularize_pair, reversed_area, through_labels, DenseMap, PairParams,
+        PreparedShape, RegularizerParams, ScanPart, UNFLIP_THRESHOLD,
     },
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
@@ -99,6 +100,11 @@ pub struct MatchArgs {
     /// regularisation.
     #[arg(long, default_value_t = 1, value_name = "N", requires = "relay")]
     pub relay_votes: usize,
+    /// With --relay and one vote: a map that reads as mirrored on more than this fraction of the
+    /// scan's area (a mirrored limb; the report's `reversed_area`) is voted with the maps onto
+    /// the next two nearest poses (0: never).
+    #[arg(long, default_value_t = shapeforest::eval::protocol::DOUBT_REVERSED_AREA, value_name = "F", value_parser = super::eval::parse_share)]
+    pub doubt_votes: f64,
 }
 
 /// A training shape the scan may be regularised onto instead of the reference.
@@ -116,6 +122,15 @@ struct OntoShape<'a> {
     prepared: PreparedShape,
     table: Option<&'a [usize]>,
     to_reference: Option<Vec<usize>>,
+}
+
+/// Fixes the signature of the closure that prepares a shape to regularise onto (a closure's
+/// own annotation cannot tie the relay's lifetime to the result's).
+fn onto_preparation<'a, F>(f: F) -> F
+where
+    F: Fn(Option<&'a Relay>) -> Result<(OntoShape<'a>, f64, f64)>,
+{
+    f
 }
 
 fn stem(p: &Path) -> String {
@@ -211,7 +226,6 @@ fn relays_by_nearness<'a>(
     reference: &Mesh,
     table: Option<&[usize]>,
     relays: &'a [Relay],
-    votes: usize,
 ) -> Result<(Vec<Option<&'a Relay>>, Vec<usize>)> {
     let ref_table: Vec<usize> =
         table.map_or_else(|| (0..reference.n_vertices()).collect(), <[usize]>::to_vec);
@@ -221,8 +235,7 @@ fn relays_by_nearness<'a>(
     let mut candidates: Vec<(&Mesh, &[usize])> = vec![(reference, &ref_table)];
     candidates.extend(relays.iter().map(|r| (&*r.mesh, r.table.as_slice())));
     let ranked = poses_by_nearness(part, prediction, &candidates)?;
-    let chosen =
-        ranked.into_iter().take(votes.max(1)).map(|c| c.checked_sub(1).map(|i| &relays[i])).collect();
+    let chosen = ranked.into_iter().map(|c| c.checked_sub(1).map(|i| &relays[i])).collect();
     Ok((chosen, ref_table))
 }
 
@@ -363,8 +376,9 @@ pub fn run(args: MatchArgs) -> Result<()> {
     // The shapes the scan is regularised onto: the relay in the nearest pose, or the reference
     // (whose spectrum is then the only one solved besides the scan's), and with --relay-votes
     // the next nearest.
-    let (ontos, ref_table) =
-        relays_by_nearness(&part.mesh, &prediction, &reference, table.as_deref(), &relays, args.relay_votes)?;
+    let (ranked, ref_table) =
+        relays_by_nearness(&part.mesh, &prediction, &reference, table.as_deref(), &relays)?;
+    let mut ontos: Vec<Option<&Relay>> = ranked.iter().take(args.relay_votes.max(1)).copied().collect();
     // The reference's left/right symmetry, when the model stores it (trained with `.sym.vts`),
     // lets the regulariser repair mirrored maps; a relay gets it through the labels.
     let symmetry = forest.reference().filter(|r| r.is_mesh(&reference)).and_then(|r| r.symmetry_map());
@@ -391,8 +405,9 @@ pub fn run(args: MatchArgs) -> Result<()> {
         }
         Ok((prepared, spectrum_s, t0.elapsed().as_secs_f64()))
     };
-    let mut onto_shapes: Vec<OntoShape<'_>> = Vec::new();
-    for onto in &ontos {
+    // A shape to regularise onto (a relay, or the reference itself) prepared, with its label
+    // table and its vertex map to the reference; the seconds of its spectra and preparation.
+    let prepare_onto_shape = onto_preparation(|onto| {
         let t0 = Instant::now();
         let (onto_mesh, onto_path, onto_symmetry, to_reference) = match onto {
             None => (reference.clone(), args.reference.as_path(), symmetry.clone(), None),
@@ -410,25 +425,34 @@ pub fn run(args: MatchArgs) -> Result<()> {
             }
         };
         // The label maps count with the shape's spectrum.
-        spectrum_ref_s += t0.elapsed().as_secs_f64();
+        let labels_s = t0.elapsed().as_secs_f64();
         let (mut prepared, spectrum_s, preparation_s) = prepare_onto(onto_mesh, onto_path)?;
-        spectrum_ref_s += spectrum_s;
         let t0 = Instant::now();
         if let Some(s) = onto_symmetry {
             prepared = prepared.with_symmetry(s.into())?;
         }
-        prepare_s += preparation_s + t0.elapsed().as_secs_f64();
         let onto_table = match onto {
             Some(relay) => Some(relay.table.as_slice()),
             None => table.as_deref(),
         };
-        onto_shapes.push(OntoShape { prepared, table: onto_table, to_reference });
+        let shape = OntoShape { prepared, table: onto_table, to_reference };
+        Ok((shape, labels_s + spectrum_s, preparation_s + t0.elapsed().as_secs_f64()))
+    });
+    let mut onto_shapes: Vec<OntoShape<'_>> = Vec::new();
+    for &onto in &ontos {
+        let (shape, spectrum_s, preparation_s) = prepare_onto_shape(onto)?;
+        spectrum_ref_s += spectrum_s;
+        prepare_s += preparation_s;
+        onto_shapes.push(shape);
     }
-    let onto_prepared = &onto_shapes[0].prepared;
+    // With relays and one vote: a map that reads as mirrored on more than this share of the
+    // scan's area is voted with the maps onto the next nearest poses.
+    let doubt =
+        (args.relay_votes <= 1 && ranked.len() > 1 && args.doubt_votes > 0.0).then_some(args.doubt_votes);
     // A map carried from a relay or voted is settled onto the reference (`DenseMap::settled`),
     // which needs the reference prepared when it is not among the shapes regularised onto.
     let settles = args.to.is_none()
-        && (ontos.len() > 1 || ontos[0].is_some())
+        && (ontos.len() > 1 || ontos[0].is_some() || doubt.is_some())
         && reg.zoomout.is_some_and(|z| (z.settle.is_some() && z.extrinsic.is_some()) || z.rigid.is_some());
     let settle_reference = if settles && ontos.iter().all(Option::is_some) {
         let (prepared, spectrum_s, preparation_s) =
@@ -439,6 +463,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
     } else {
         None
     };
+    let (mut reversed, mut doubt_prepare_s) = (None, 0.0);
     let t0 = Instant::now();
     // With --to: the target scan's spectrum, prediction and preparation count in this stage.
     // `dense`: the regularisation the report's quality fields describe; `map`: the map written.
@@ -455,7 +480,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
             let pair = regularize_pair(
                 &test,
                 &targetp,
-                onto_prepared,
+                &onto_shapes[0].prepared,
                 &prediction,
                 &target_prediction,
                 table.as_deref(),
@@ -474,25 +499,56 @@ pub fn run(args: MatchArgs) -> Result<()> {
         }
         _ => {
             // Onto each shape, carried to the reference; the first voted with the others.
-            let mut maps = onto_shapes
-                .iter()
-                .map(|onto| {
-                    let dense = regularize(&test, &onto.prepared, &prediction, onto.table, &reg)?;
-                    Ok(match &onto.to_reference {
-                        Some(t) => dense.carried(t)?,
-                        None => dense,
-                    })
-                })
-                .collect::<Result<Vec<_>>>()?;
-            let others = maps.split_off(1);
-            let mut dense = maps.remove(0).voted(&others, &reference)?;
-            if settles {
-                let onto_reference =
-                    onto_shapes.iter().find(|o| o.to_reference.is_none()).map(|o| &o.prepared);
-                if let Some(r) = settle_reference.as_ref().or(onto_reference) {
-                    dense = dense.settled(&test, r, &reg)?;
+            // With `read`: the share of the scan's area where the map onto the shape (before it
+            // is carried to the reference) reads as mirrored.
+            let onto_map = |onto: &OntoShape<'_>, read: bool| -> Result<(DenseMap, Option<f64>)> {
+                let dense = regularize(&test, &onto.prepared, &prediction, onto.table, &reg)?;
+                let share = read
+                    .then(|| reversed_area(&test.mesh, &onto.prepared.mesh, &dense.map, UNFLIP_THRESHOLD));
+                let dense = match &onto.to_reference {
+                    Some(t) => dense.carried(t)?,
+                    None => dense,
+                };
+                Ok((dense, share))
+            };
+            // A carried or voted map, settled onto the reference.
+            let settle =
+                |dense: DenseMap, shapes: &[OntoShape<'_>], carried_or_voted: bool| -> Result<DenseMap> {
+                    let onto_reference =
+                        shapes.iter().find(|o| o.to_reference.is_none()).map(|o| &o.prepared);
+                    match settle_reference.as_ref().or(onto_reference) {
+                        Some(r) if settles && carried_or_voted => Ok(dense.settled(&test, r, &reg)?),
+                        _ => Ok(dense),
+                    }
+                };
+            let vote = |first: DenseMap, shapes: &[OntoShape<'_>]| -> Result<DenseMap> {
+                let others = shapes[1..]
+                    .iter()
+                    .map(|o| onto_map(o, false).map(|(d, _)| d))
+                    .collect::<Result<Vec<_>>>()?;
+                settle(first.voted(&others, &reference)?, shapes, true)
+            };
+            let one_vote = onto_shapes.len() == 1;
+            let (first, share) = onto_map(&onto_shapes[0], one_vote)?;
+            reversed = share;
+            let dense = if !one_vote {
+                vote(first, &onto_shapes)?
+            } else if doubt.is_some_and(|limit| share.is_some_and(|r| r > limit)) {
+                // A map that reads as mirrored in part: voted with the next nearest poses'.
+                ontos = ranked.iter().take(DOUBT_VOTES).copied().collect();
+                let t1 = Instant::now();
+                for &onto in &ontos[1..] {
+                    let (shape, spectrum_s, preparation_s) = prepare_onto_shape(onto)?;
+                    spectrum_ref_s += spectrum_s;
+                    prepare_s += preparation_s;
+                    onto_shapes.push(shape);
                 }
-            }
+                doubt_prepare_s = t1.elapsed().as_secs_f64();
+                vote(first, &onto_shapes)?
+            } else {
+                let carried = onto_shapes[0].to_reference.is_some();
+                settle(first, &onto_shapes, carried)?
+            };
             let map = part.extend(&scan, dense.map.clone());
             (dense, map, "the map onto the reference", None)
         }
@@ -502,7 +558,8 @@ pub fn run(args: MatchArgs) -> Result<()> {
         .iter()
         .map(|o| o.map_or_else(|| args.reference.display().to_string(), |r| r.path.display().to_string()))
         .collect();
-    let regularize_s = t0.elapsed().as_secs_f64();
+    // The relays a doubted map brought in count with the spectra and preparation.
+    let regularize_s = t0.elapsed().as_secs_f64() - doubt_prepare_s;
 
     let t0 = Instant::now();
     let scan_name = stem(&args.mesh);
@@ -540,6 +597,10 @@ pub fn run(args: MatchArgs) -> Result<()> {
         "to": args.to.as_ref().map(|p| p.display().to_string()),
         "regularised_onto_relay": onto_relay,
         "voted_with": voted_with,
+        // the share of the scan's area where the map onto the nearest pose reads as mirrored
+        // (one vote); above `--doubt-votes`, the map was voted with the next nearest poses'
+        "reversed_area": reversed,
+        "doubted": reversed.is_some() && !voted_with.is_empty(),
         "components": part.components,
         "matched_part_vertices": part.mesh.n_vertices(),
         "normalising_area_ratio": scale_ratio,
@@ -558,7 +619,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
         // heat-method sources solved and served from the prepared shapes' kept columns
         "heat_columns": {
             "scan": { "solved": test.column_counts().0, "reused": test.column_counts().1 },
-            "reference": { "solved": onto_prepared.column_counts().0, "reused": onto_prepared.column_counts().1 },
+            "reference": { "solved": onto_shapes[0].prepared.column_counts().0, "reused": onto_shapes[0].prepared.column_counts().1 },
         },
         "timings_s": {
             "load": load_s,
@@ -582,11 +643,20 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let report_path = args.out.join(format!("{scan_name}.report.json"));
     std::fs::write(&report_path, json).with_context(|| format!("cannot write {}", report_path.display()))?;
     println!(
-        "{} → {}{}: {} vertices matched, {} sparse matches, orientation {:.3}, mean confidence {:.3}; \
+        "{} → {}{}{}: {} vertices matched, {} sparse matches, orientation {:.3}, mean confidence {:.3}; \
          predict {predict_s:.2} s, regularise {regularize_s:.2} s; wrote {}",
         args.mesh.display(),
         onto_path.display(),
         onto_relay.as_ref().map_or(String::new(), |r| format!(" (regularised onto {r}, the nearest pose)")),
+        match (voted_with.is_empty(), reversed) {
+            (true, _) => String::new(),
+            (false, Some(share)) => format!(
+                " (voted with {}: {:.1} % of the area read as mirrored)",
+                voted_with.join(" and "),
+                100.0 * share
+            ),
+            (false, None) => format!(" (voted with {})", voted_with.join(" and ")),
+        },
         map.len(),
         dense.matches.len(),
         dense.orientation_score,

@@ -53,7 +53,8 @@ use crate::{
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, perturbations_name, Mesh, Perturbation},
     regularizer::{
-        poses_by_nearness, regularize, through_labels, DenseMap, PreparedShape, RegularizerParams, ScanPart,
+        poses_by_nearness, regularize, reversed_area, through_labels, DenseMap, PreparedShape,
+        RegularizerParams, ScanPart, UNFLIP_THRESHOLD,
     },
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
@@ -145,7 +146,20 @@ pub struct ProtocolParams {
     /// ([`crate::regularizer::vote_maps`]; ties and the other outputs go to the nearest pose's).
     /// 1: the nearest pose alone. Each vote costs a regularisation. Default 1.
     pub relay_votes: usize,
+    /// With `relay` and one vote: a map that reads as mirrored on more than this fraction of
+    /// the scan's area ([`crate::regularizer::reversed_area`], a mirrored limb) is voted with
+    /// the maps onto the next nearest poses, [`DOUBT_VOTES`] in all. `None`: never. Default
+    /// `Some(`[`DOUBT_REVERSED_AREA`]`)`.
+    pub doubt: Option<f64>,
 }
+
+/// Maps voted on a doubted map ([`ProtocolParams::doubt`]), the doubted one included.
+pub const DOUBT_VOTES: usize = 3;
+
+/// The default of [`ProtocolParams::doubt`]: a fiftieth of the scan's area reads as mirrored
+/// (good maps of the hi-res classes read 0–1.8 %, and most of those above 2 % are the worst of
+/// their class; README, "Relay votes").
+pub const DOUBT_REVERSED_AREA: f64 = 0.02;
 
 /// Where a test's wrong points come from (with [`ProtocolParams::diagnose`]): the fraction of
 /// the evaluated points of the matched part within 0.05 (strict, and up to the mirror
@@ -188,6 +202,7 @@ impl Default for ProtocolParams {
             diagnose: None,
             relay: true,
             relay_votes: 1,
+            doubt: Some(DOUBT_REVERSED_AREA),
         }
     }
 }
@@ -298,9 +313,15 @@ pub struct TestResult {
     /// reference through the labels.
     #[serde(default)]
     pub relay: Option<usize>,
-    /// The other shapes whose maps were voted with it ([`ProtocolParams::relay_votes`]).
+    /// The other shapes whose maps were voted with it ([`ProtocolParams::relay_votes`], or
+    /// [`ProtocolParams::doubt`] on a doubted map).
     #[serde(default)]
     pub votes: Vec<usize>,
+    /// The share of the scan's area where the map onto the nearest pose (before it is carried to
+    /// the reference) reads as mirrored ([`crate::regularizer::reversed_area`]); measured with
+    /// one vote.
+    #[serde(default)]
+    pub reversed_area: Option<f64>,
     /// Training shapes (indices into the input list, sorted).
     pub training: Vec<usize>,
     /// Whether the forest was reused from an earlier test with the same training set.
@@ -710,44 +731,70 @@ pub fn run_protocol(
         stage(&mut progress, "regularize");
         let t0 = Instant::now();
         // Onto the training shape in the nearest pose (the reference itself, or a relay whose
-        // map is carried back through the labels).
-        let targets = if params.relay && params.diagnose.is_none() {
+        // map is carried back through the labels): the training shapes by nearness of pose.
+        let ranked: Vec<usize> = if params.relay && params.diagnose.is_none() {
             let candidates: Vec<(&Mesh, &[usize])> =
                 train.iter().map(|&s| (&*shapes[s].mesh, shapes[s].truth.as_slice())).collect();
-            let ranked = poses_by_nearness(&test_prepared.mesh, &prediction, &candidates)?;
-            ranked.into_iter().take(params.relay_votes.max(1)).map(|c| train[c]).collect()
+            poses_by_nearness(&test_prepared.mesh, &prediction, &candidates)?
+                .into_iter()
+                .map(|c| train[c])
+                .collect()
         } else {
             vec![reference]
         };
-        for &target in targets.iter().filter(|&&t| t != reference) {
-            if prepared_relays.iter().any(|r| r.0 == (target, reference)) {
-                continue;
-            }
-            let t1 = Instant::now();
-            let to_reference =
-                through_labels(&shapes[target].mesh, &shapes[target].truth, &shapes[reference].mesh, table)?;
-            // Room for it: a relay this test does not use goes.
-            if prepared_relays.len() >= RELAYS_KEPT.max(targets.len()) {
-                if let Some(i) = prepared_relays.iter().position(|r| !targets.contains(&r.0 .0)) {
-                    prepared_relays.remove(i);
+        let mut targets: Vec<usize> = ranked.iter().take(params.relay_votes.max(1)).copied().collect();
+        // The relays among `wanted` prepared, with their label maps to the reference.
+        let prepare_relays = |wanted: &[usize],
+                              relays: &mut Vec<((usize, usize), PreparedShape, Vec<usize>)>,
+                              timings: &mut TestTimings|
+         -> Result<(), EvalError> {
+            for &target in wanted.iter().filter(|&&t| t != reference) {
+                if relays.iter().any(|r| r.0 == (target, reference)) {
+                    continue;
                 }
+                let t1 = Instant::now();
+                let to_reference = through_labels(
+                    &shapes[target].mesh,
+                    &shapes[target].truth,
+                    &shapes[reference].mesh,
+                    table,
+                )?;
+                // Room for it: a relay this test does not use goes.
+                if relays.len() >= RELAYS_KEPT.max(wanted.len()) {
+                    if let Some(i) = relays.iter().position(|r| !wanted.contains(&r.0 .0)) {
+                        relays.remove(i);
+                    }
+                }
+                relays.push(((target, reference), prepare_target(target)?, to_reference));
+                timings.prepare_s += t1.elapsed().as_secs_f64();
             }
-            prepared_relays.push(((target, reference), prepare_target(target)?, to_reference));
-            timings.prepare_s += t1.elapsed().as_secs_f64();
-        }
-        // A prediction regularised onto a target, as a map onto the reference.
-        let regularize_onto = |target: usize, p: &Prediction| -> Result<DenseMap, EvalError> {
+            Ok(())
+        };
+        prepare_relays(&targets, &mut prepared_relays, &mut timings)?;
+        // A prediction regularised onto a target, as a map onto the reference, and with `read`
+        // the share of the scan's area where the map onto the target reads as mirrored.
+        let threshold = params.regularizer.unflip.unwrap_or(UNFLIP_THRESHOLD);
+        let regularize_onto = |relays: &[((usize, usize), PreparedShape, Vec<usize>)],
+                               target: usize,
+                               p: &Prediction,
+                               read: bool|
+         -> Result<(DenseMap, Option<f64>), EvalError> {
+            let reversed = |onto: &PreparedShape, d: &DenseMap| {
+                read.then(|| reversed_area(&test_prepared.mesh, &onto.mesh, &d.map, threshold))
+            };
             if target == reference {
-                return Ok(regularize(&test_prepared, ref_prepared, p, Some(table), &params.regularizer)?);
+                let dense = regularize(&test_prepared, ref_prepared, p, Some(table), &params.regularizer)?;
+                let share = reversed(ref_prepared, &dense);
+                return Ok((dense, share));
             }
             let (_, prepared, to_reference) =
-                prepared_relays.iter().find(|r| r.0 == (target, reference)).expect("prepared above");
-            Ok(regularize(&test_prepared, prepared, p, Some(&shapes[target].truth), &params.regularizer)?
-                .carried(to_reference)?)
+                relays.iter().find(|r| r.0 == (target, reference)).expect("prepared above");
+            let dense =
+                regularize(&test_prepared, prepared, p, Some(&shapes[target].truth), &params.regularizer)?;
+            let share = reversed(prepared, &dense);
+            Ok((dense.carried(to_reference)?, share))
         };
         let target = targets[0];
-        let others: Vec<DenseMap> =
-            targets[1..].iter().map(|&t| regularize_onto(t, &prediction)).collect::<Result<_, _>>()?;
         // A carried or voted map did not end with a refinement onto the reference: settled onto it.
         let settle = |dense: DenseMap, carried_or_voted: bool| -> Result<DenseMap, EvalError> {
             if !carried_or_voted {
@@ -755,10 +802,26 @@ pub fn run_protocol(
             }
             Ok(dense.settled(&test_prepared, ref_prepared, &params.regularizer)?)
         };
-        let dense = settle(
-            regularize_onto(target, &prediction)?.voted(&others, &ref_prepared.mesh)?,
-            target != reference || !others.is_empty(),
-        )?;
+        // Maps onto the other targets, voted with the first.
+        let voted = |first: DenseMap, others: &[usize], relays: &[_]| -> Result<DenseMap, EvalError> {
+            let others: Vec<DenseMap> = others
+                .iter()
+                .map(|&t| regularize_onto(relays, t, &prediction, false).map(|(d, _)| d))
+                .collect::<Result<_, _>>()?;
+            settle(first.voted(&others, &ref_prepared.mesh)?, true)
+        };
+        let one_vote = targets.len() == 1;
+        let (first, reversed) = regularize_onto(&prepared_relays, target, &prediction, one_vote)?;
+        let dense = if !one_vote {
+            voted(first, &targets[1..], &prepared_relays)?
+        } else if params.doubt.is_some_and(|limit| reversed.is_some_and(|r| r > limit)) && ranked.len() > 1 {
+            // A map that reads as mirrored in part: voted with the next nearest poses'.
+            targets = ranked.iter().take(DOUBT_VOTES).copied().collect();
+            prepare_relays(&targets, &mut prepared_relays, &mut timings)?;
+            voted(first, &targets[1..], &prepared_relays)?
+        } else {
+            settle(first, target != reference)?
+        };
         timings.regularize_s = t0.elapsed().as_secs_f64();
 
         let baseline = if params.skip_baseline {
@@ -770,7 +833,10 @@ pub fn run_protocol(
             let knn_prediction = knn.predict(&test_prepared.spectrum, k)?;
             timings.knn_predict_s = t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
-            let knn_dense = settle(regularize_onto(target, &knn_prediction)?, target != reference)?;
+            let knn_dense = settle(
+                regularize_onto(&prepared_relays, target, &knn_prediction, false)?.0,
+                target != reference,
+            )?;
             timings.knn_regularize_s = t0.elapsed().as_secs_f64();
             Some((knn_prediction, knn_dense))
         };
@@ -860,6 +926,7 @@ pub fn run_protocol(
             reference,
             relay: (target != reference).then_some(target),
             votes: targets[1..].to_vec(),
+            reversed_area: reversed,
             training: key,
             forest_reused,
             mean_support: prediction.mean_support(),

@@ -129,10 +129,32 @@ pub(super) fn diffuse(offsets: &[usize], neighbours: &[usize], mut cur: Vec<f64>
     cur
 }
 
+/// The default threshold of [`unflip`] (and of [`reversed_area`]'s reading of a map): a smoothed
+/// orientation below −0.2 reads as mirrored.
+pub const UNFLIP_THRESHOLD: f64 = 0.2;
+
 /// Smoothing passes for [`unflip`] on a mesh of `n` vertices: a diffusion radius of about
 /// 0.05·√area (`(0.05·√area / h)²` passes for an edge length `h` of a regular mesh).
 pub fn unflip_rounds(n: usize) -> usize {
     (n / 400).clamp(4, 400)
+}
+
+/// Fraction of the test's area (lumped vertex areas) where `map` reads as mirrored: its
+/// smoothed orientation ([`smoothed_orientation`] with [`unflip_rounds`] passes, as [`unflip`]
+/// reads it) is below `-threshold`. Near 0 for a map that keeps orientation; a mirrored limb
+/// shows as the limb's share of the area. `map` must have one entry per test vertex, each a
+/// reference vertex.
+pub fn reversed_area(test: &Mesh, reference: &Mesh, map: &[usize], threshold: f64) -> f64 {
+    let orientation = map_orientation(test, reference, map);
+    let smooth = smoothed_orientation(test, &orientation, unflip_rounds(test.n_vertices()));
+    let mass = crate::spectral::vertex_lumped_mass(test);
+    let total = mass.iter().fold(0.0, |a, m| a + m);
+    let reversed = smooth.iter().zip(&mass).filter(|(s, _)| **s < -threshold).fold(0.0, |a, (_, m)| a + m);
+    if total > 0.0 {
+        reversed / total
+    } else {
+        0.0
+    }
 }
 
 /// What [`unflip`] did.
@@ -279,6 +301,19 @@ mod tests {
         // An orientation-preserving map is left alone.
         let identity: Vec<usize> = (0..n).collect();
         assert!(unflip(&mesh, &mesh, &identity, &mirror, 0.2).is_none());
+    }
+
+    #[test]
+    fn reversed_area_is_the_mirrored_share_of_the_surface() {
+        let (mesh, mirror) = ellipsoid_and_mirror();
+        let n = mesh.n_vertices();
+        let identity: Vec<usize> = (0..n).collect();
+        assert_eq!(reversed_area(&mesh, &mesh, &identity, 0.2), 0.0);
+        assert!(reversed_area(&mesh, &mesh, &mirror, 0.2) > 0.98);
+        // The cap z > 0.9 of an ellipsoid with semi-axis 1.7 is a small share of its area.
+        let cap: Vec<usize> = (0..n).map(|v| if mesh.vertices[v][2] > 0.9 { mirror[v] } else { v }).collect();
+        let share = reversed_area(&mesh, &mesh, &cap, 0.2);
+        assert!(share > 0.05 && share < 0.3, "a mirrored cap reads as {share:.3} of the area");
     }
 
     #[test]

@@ -41,7 +41,8 @@ pub use error::RegularizerError;
 use error::RegularizerError as Error;
 pub use extrinsic::{refine_extrinsic, settle_map, ExtrinsicParams, SETTLE_REACH};
 pub use flip::{
-    map_orientation, smoothed_orientation, symmetry_from_pairs, unflip, unflip_rounds, MapOrientation, Unflip,
+    map_orientation, reversed_area, smoothed_orientation, symmetry_from_pairs, unflip, unflip_rounds,
+    MapOrientation, Unflip, UNFLIP_THRESHOLD,
 };
 use growth::{anchor_consistent_map, grow_anchors};
 use orientation::Orientation;
@@ -536,7 +537,7 @@ impl Default for RegularizerParams {
             growth: Some(AnchorGrowthParams::default()),
             zoomout: None,
             partial_zoomout: true,
-            unflip: Some(0.2),
+            unflip: Some(UNFLIP_THRESHOLD),
             spectral_maps: false,
             partial_scan: PartialScanParams::default(),
         }
