@@ -21,19 +21,10 @@ fn family(n_vertices: usize, n_shapes: usize) -> shapeforest::synth::ShapeFamily
         .expect("synthetic family")
 }
 
-/// The family's shapes, each its own ground truth (shared vertex indexing).
-fn protocol_shapes(fam: &shapeforest::synth::ShapeFamily) -> Vec<ProtocolShape> {
-    fam.shapes
-        .iter()
-        .enumerate()
-        .map(|(i, m)| ProtocolShape::identity(format!("s{i}"), Arc::new(m.clone())))
-        .collect()
-}
-
 #[test]
 fn protocol_on_a_small_family_beats_raw_wks_knn() {
     let fam = family(1500, 4);
-    let shapes = protocol_shapes(&fam);
+    let shapes = common::protocol_shapes(&fam);
     let params = ProtocolParams {
         n_train: 2,
         max_tests: Some(2),
@@ -77,7 +68,7 @@ fn a_zoomout_basis_beyond_the_descriptors_eigenpairs_is_computed_and_used() {
     // Descriptors on 30 eigenpairs; ZoomOut asked to refine up to 60. The protocol used to cap
     // ZoomOut at the descriptors' 30 without a word; now the reference and the scans get 60.
     let fam = family(1500, 4);
-    let shapes = protocol_shapes(&fam);
+    let shapes = common::protocol_shapes(&fam);
     let cache = tempfile::tempdir().unwrap();
     let run = |k_final: usize| {
         let params = ProtocolParams {

@@ -3,11 +3,9 @@
 
 mod common;
 
-use std::sync::Arc;
-
 use shapeforest::{
     eval::{
-        protocol::{run_protocol, Method, ProtocolParams, ProtocolShape},
+        protocol::{run_protocol, Method, ProtocolParams},
         PooledReport,
     },
     forest::{Prediction, RandomForest},
@@ -103,12 +101,7 @@ fn through_labels_places_unlabelled_vertices_between_their_labelled_neighbours()
 #[test]
 fn relayed_and_voted_maps_are_carried_to_the_reference_and_do_not_lose_accuracy() {
     let fam = family(7);
-    let shapes: Vec<ProtocolShape> = fam
-        .shapes
-        .iter()
-        .enumerate()
-        .map(|(i, m)| ProtocolShape::identity(format!("s{i}"), Arc::new(m.clone())))
-        .collect();
+    let shapes = common::protocol_shapes(&fam);
     let run = |relay: bool, relay_votes: usize| {
         let params = ProtocolParams {
             n_train: 5,
@@ -158,12 +151,7 @@ fn relayed_and_voted_maps_are_carried_to_the_reference_and_do_not_lose_accuracy(
 #[test]
 fn a_map_that_reads_as_mirrored_is_voted_with_the_next_nearest_poses() {
     let fam = family(7);
-    let shapes: Vec<ProtocolShape> = fam
-        .shapes
-        .iter()
-        .enumerate()
-        .map(|(i, m)| ProtocolShape::identity(format!("s{i}"), Arc::new(m.clone())))
-        .collect();
+    let shapes = common::protocol_shapes(&fam);
     let run = |trees: usize, doubt: Option<f64>| {
         let params = ProtocolParams {
             n_train: 5,

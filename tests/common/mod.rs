@@ -91,3 +91,20 @@ pub fn save_shared_indexing_model(shapes: &[&shapeforest::mesh::Mesh], trees: us
         RandomForest::params().n_trees(trees).check().expect("forest params").fit(&set).expect("forest");
     forest.save(path).expect("model file");
 }
+
+/// The family's shapes for the evaluation protocol (`s0`, `s1`, …), each its own ground truth
+/// (shared vertex indexing).
+pub fn protocol_shapes(
+    fam: &shapeforest::synth::ShapeFamily,
+) -> Vec<shapeforest::eval::protocol::ProtocolShape> {
+    fam.shapes
+        .iter()
+        .enumerate()
+        .map(|(i, m)| {
+            shapeforest::eval::protocol::ProtocolShape::identity(
+                format!("s{i}"),
+                std::sync::Arc::new(m.clone()),
+            )
+        })
+        .collect()
+}
