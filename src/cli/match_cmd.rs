@@ -454,12 +454,13 @@ pub fn run(args: MatchArgs) -> Result<()> {
     let settles = args.to.is_none()
         && (ontos.len() > 1 || ontos[0].is_some() || doubt.is_some())
         && reg.zoomout.is_some_and(|z| (z.settle.is_some() && z.extrinsic.is_some()) || z.rigid.is_some());
-    let settle_reference = if settles && ontos.iter().all(Option::is_some) {
-        let (prepared, spectrum_s, preparation_s) =
-            prepare_onto(reference.clone(), args.reference.as_path())?;
+    // (Prepared as a shape to regularise onto, so that a doubted map whose voters include the
+    // reference takes it instead of preparing it again.)
+    let mut settle_reference = if settles && ontos.iter().all(Option::is_some) {
+        let (shape, spectrum_s, preparation_s) = prepare_onto_shape(None)?;
         spectrum_ref_s += spectrum_s;
         prepare_s += preparation_s;
-        Some(prepared)
+        Some(shape)
     } else {
         None
     };
@@ -511,43 +512,51 @@ pub fn run(args: MatchArgs) -> Result<()> {
                 };
                 Ok((dense, share))
             };
-            // A carried or voted map, settled onto the reference.
-            let settle =
-                |dense: DenseMap, shapes: &[OntoShape<'_>], carried_or_voted: bool| -> Result<DenseMap> {
-                    let onto_reference =
-                        shapes.iter().find(|o| o.to_reference.is_none()).map(|o| &o.prepared);
-                    match settle_reference.as_ref().or(onto_reference) {
-                        Some(r) if settles && carried_or_voted => Ok(dense.settled(&test, r, &reg)?),
-                        _ => Ok(dense),
-                    }
-                };
-            let vote = |first: DenseMap, shapes: &[OntoShape<'_>]| -> Result<DenseMap> {
+            // A carried or voted map, settled onto the reference (among `shapes`, or `spare`).
+            let settle = |dense: DenseMap,
+                          shapes: &[OntoShape<'_>],
+                          spare: Option<&OntoShape<'_>>,
+                          carried_or_voted: bool|
+             -> Result<DenseMap> {
+                let onto_reference = shapes.iter().chain(spare).find(|o| o.to_reference.is_none());
+                match onto_reference {
+                    Some(r) if settles && carried_or_voted => Ok(dense.settled(&test, &r.prepared, &reg)?),
+                    _ => Ok(dense),
+                }
+            };
+            let vote = |first: DenseMap, shapes: &[OntoShape<'_>], spare: Option<&OntoShape<'_>>| {
                 let others = shapes[1..]
                     .iter()
                     .map(|o| onto_map(o, false).map(|(d, _)| d))
                     .collect::<Result<Vec<_>>>()?;
-                settle(first.voted(&others, &reference)?, shapes, true)
+                settle(first.voted(&others, &reference)?, shapes, spare, true)
             };
             let one_vote = onto_shapes.len() == 1;
             let (first, share) = onto_map(&onto_shapes[0], one_vote)?;
             reversed = share;
             let dense = if !one_vote {
-                vote(first, &onto_shapes)?
+                vote(first, &onto_shapes, settle_reference.as_ref())?
             } else if doubt.is_some_and(|limit| share.is_some_and(|r| r > limit)) {
                 // A map that reads as mirrored in part: voted with the next nearest poses'.
                 ontos = ranked.iter().take(DOUBT_VOTES).copied().collect();
                 let t1 = Instant::now();
                 for &onto in &ontos[1..] {
-                    let (shape, spectrum_s, preparation_s) = prepare_onto_shape(onto)?;
-                    spectrum_ref_s += spectrum_s;
-                    prepare_s += preparation_s;
+                    let shape = match onto {
+                        None if settle_reference.is_some() => settle_reference.take().expect("checked"),
+                        _ => {
+                            let (shape, spectrum_s, preparation_s) = prepare_onto_shape(onto)?;
+                            spectrum_ref_s += spectrum_s;
+                            prepare_s += preparation_s;
+                            shape
+                        }
+                    };
                     onto_shapes.push(shape);
                 }
                 doubt_prepare_s = t1.elapsed().as_secs_f64();
-                vote(first, &onto_shapes)?
+                vote(first, &onto_shapes, settle_reference.as_ref())?
             } else {
                 let carried = onto_shapes[0].to_reference.is_some();
-                settle(first, &onto_shapes, carried)?
+                settle(first, &onto_shapes, settle_reference.as_ref(), carried)?
             };
             let map = part.extend(&scan, dense.map.clone());
             (dense, map, "the map onto the reference", None)
