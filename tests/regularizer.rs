@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use shapeforest::{
     eval::{geodesic_errors, ErrorSummary},
-    forest::{RandomForest, TrainingSet},
+    forest::{Prediction, RandomForest, TrainingSet},
     geodesic::HeatParams,
     regularizer::{
         dense_map, refine_map, regularize, sparse_matches, AnchorGrowthParams, MapSelection, PreparedShape,
@@ -201,4 +201,54 @@ fn the_third_map_of_the_choice_sharpens_a_non_isometric_map_within_its_reach() {
     // Sharper than the choice of two, and than the same map unbounded.
     assert!(with.within_005 > without.within_005 && with.mean < without.mean, "{with:?} vs two {without:?}");
     assert!(with.within_005 > free.within_005, "{with:?} vs unbounded {free:?}");
+}
+
+#[test]
+fn a_prediction_mirrored_as_a_whole_is_read_through_the_symmetry() {
+    let Case { fam, n, test, reference: bare, .. } = case(7, 3);
+    let reference = PreparedShape::new(bare.mesh.clone(), bare.spectrum.clone(), HeatParams::default())
+        .unwrap()
+        .with_symmetry(fam.symmetry.clone().into())
+        .unwrap();
+    // Posteriors that know each vertex up to the left/right flip (the family shares its
+    // vertex indexing): 0.6 on one side and 0.4 on the other, the right way round or as a
+    // mirror image as a whole (what a forest of intrinsic descriptors may predict for a scan).
+    let posterior = |mirror: bool| {
+        let (mut offsets, mut labels, mut probs) = (vec![0], Vec::new(), Vec::new());
+        for v in 0..n {
+            let (truth, image) = (v as u32, fam.symmetry[v] as u32);
+            let (first, second) = if mirror { (image, truth) } else { (truth, image) };
+            let mut entries = vec![(first, 0.6f32), (second, 0.4)];
+            entries.sort_unstable_by_key(|e| e.0);
+            entries.dedup_by_key(|e| e.0);
+            if entries.len() == 1 {
+                entries[0].1 = 1.0;
+            }
+            labels.extend(entries.iter().map(|e| e.0));
+            probs.extend(entries.iter().map(|e| e.1));
+            offsets.push(labels.len());
+        }
+        Prediction::from_parts(n, offsets, labels, probs).unwrap()
+    };
+    let (kept, mirrored) = (posterior(false), posterior(true));
+    let params = RegularizerParams::default();
+    let plain = regularize(&test, &reference, &kept, None, &params).unwrap();
+    let read = regularize(&test, &reference, &mirrored, None, &params).unwrap();
+    assert!(!plain.prediction_mirrored, "a prediction the right way round was read as mirrored");
+    assert!(read.prediction_mirrored, "the mirror image was not read as one");
+    // The forest's map is reported as predicted.
+    let predicted: Vec<Option<usize>> =
+        mirrored.map_labels().into_iter().map(|l| l.map(|l| l as usize)).collect();
+    assert_eq!(read.forest_map, predicted);
+    let evaluated: Vec<usize> = (0..n).step_by(3).collect();
+    let fields = reference.heat.distances_from_many(&evaluated).unwrap();
+    let area = reference.mesh.surface_area();
+    let strict = |map: &[usize]| {
+        ErrorSummary::of(&geodesic_errors(map, &evaluated, fields.as_ref(), None, area).unwrap().0)
+    };
+    let (p, r) = (strict(&plain.map), strict(&read.map));
+    assert!(p.within_005 > 0.9, "{p:?}");
+    assert!(r.within_005 >= p.within_005 - 0.01, "mirrored {r:?} vs the right way round {p:?}");
+    // Without the reference's symmetry the prediction is taken as it is.
+    assert!(!regularize(&test, &bare, &mirrored, None, &params).unwrap().prediction_mirrored);
 }

@@ -856,6 +856,18 @@ pub fn run(args: EvalArgs) -> Result<()> {
     pb.finish_and_clear();
 
     print!("{}", format_table(&report));
+    let mirrored: Vec<&str> = report
+        .tests
+        .iter()
+        .filter(|t| t.prediction_mirrored)
+        .map(|t| report.shape_names[t.test].as_str())
+        .collect();
+    if !mirrored.is_empty() {
+        println!(
+            "predictions mirrored as a whole, read through the symmetry: {} (results.csv: prediction_mirrored)",
+            mirrored.join(", ")
+        );
+    }
     if params.relay {
         let relayed = report.tests.iter().filter(|t| t.relay.is_some()).count();
         println!(
@@ -1064,7 +1076,7 @@ fn write_point_errors(out: &Path, report: &ProtocolReport) -> Result<()> {
 
 fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usize) -> Result<()> {
     let mut csv = String::from(
-        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation,regularised_onto,voted_with,reversed_area\n",
+        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation,regularised_onto,voted_with,reversed_area,prediction_mirrored\n",
     );
     for t in &report.tests {
         let scan = t.scan.as_deref().unwrap_or(&class.shapes[t.test].mesh);
@@ -1080,7 +1092,7 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
             let sy = m.symmetric.as_ref().map(|y| ErrorSummary::of(y));
             let _ = writeln!(
                 csv,
-                "{},{},{},{},{},{},{},{},{:.6},{:.4},{},{},{}",
+                "{},{},{},{},{},{},{},{},{:.6},{:.4},{},{},{},{}",
                 report.shape_names[t.test],
                 report.shape_names[t.reference],
                 m.method.name(),
@@ -1094,6 +1106,7 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
                 report.shape_names[t.relay.unwrap_or(t.reference)],
                 t.votes.iter().map(|&v| report.shape_names[v].as_str()).collect::<Vec<_>>().join(" "),
                 t.reversed_area.map_or(String::new(), |r| format!("{r:.4}")),
+                t.prediction_mirrored,
             );
         }
     }

@@ -322,6 +322,11 @@ pub struct TestResult {
     /// one vote.
     #[serde(default)]
     pub reversed_area: Option<f64>,
+    /// Whether the forest's prediction read as a mirror image as a whole and the regulariser
+    /// read it through the symmetry ([`crate::regularizer::DenseMap::prediction_mirrored`], of
+    /// the map onto the nearest pose).
+    #[serde(default)]
+    pub prediction_mirrored: bool,
     /// Training shapes (indices into the input list, sorted).
     pub training: Vec<usize>,
     /// Whether the forest was reused from an earlier test with the same training set.
@@ -812,6 +817,7 @@ pub fn run_protocol(
         };
         let one_vote = targets.len() == 1;
         let (first, reversed) = regularize_onto(&prepared_relays, target, &prediction, one_vote)?;
+        let prediction_mirrored = first.prediction_mirrored;
         let dense = if !one_vote {
             voted(first, &targets[1..], &prepared_relays)?
         } else if params.doubt.is_some_and(|limit| reversed.is_some_and(|r| r > limit)) && ranked.len() > 1 {
@@ -927,6 +933,7 @@ pub fn run_protocol(
             relay: (target != reference).then_some(target),
             votes: targets[1..].to_vec(),
             reversed_area: reversed,
+            prediction_mirrored,
             training: key,
             forest_reused,
             mean_support: prediction.mean_support(),

@@ -13,6 +13,10 @@ pub struct MapQuality {
     pub orientation_score: f64,
     /// Whether the game's first equilibrium was a mirror image and was replaced.
     pub mirror_rejected: bool,
+    /// Whether the forest's prediction read as a mirror image as a whole and was read through
+    /// the reference's symmetry ([`DenseMap::prediction_mirrored`]).
+    #[serde(default)]
+    pub prediction_mirrored: bool,
     /// Anchors of the last round of anchor growth (0: growth off).
     pub grown_anchors: usize,
     /// Mean orientation agreement of the grown map (`null`: growth off).
@@ -31,6 +35,7 @@ impl MapQuality {
         Self {
             orientation_score: dense.orientation_score,
             mirror_rejected: dense.mirror_rejected,
+            prediction_mirrored: dense.prediction_mirrored,
             grown_anchors: dense.grown_anchors,
             dense_orientation_agreement: dense.dense_orientation,
             reoriented: dense.reoriented,

@@ -619,6 +619,11 @@ pub struct DenseMap {
     /// Whether the first equilibrium of the game was a mirror image and was replaced by the
     /// orientation-preserving one.
     pub mirror_rejected: bool,
+    /// Whether the forest's own map ([`DenseMap::forest_map`]) read as a mirror image as a whole
+    /// (orientation score below minus [`RegularizerParams::unflip`]'s threshold), so that the
+    /// prediction was read through the reference's symmetry (each label's vertex replaced by its
+    /// mirror image) before the regulariser used it; needs the reference's symmetry.
+    pub prediction_mirrored: bool,
     /// Time per stage.
     pub timings: RegularizerTimings,
 }
@@ -690,6 +695,10 @@ pub struct SparseMatches {
     pub orientation_score: f64,
     /// Whether a mirror-image equilibrium was replaced.
     pub mirror_rejected: bool,
+    /// Whether the prediction read as a mirror image as a whole and was read through the
+    /// reference's symmetry (see [`DenseMap::prediction_mirrored`]); the dense step reads it
+    /// the same way.
+    pub prediction_mirrored: bool,
     /// Time of sampling, distances and matching.
     pub timings: RegularizerTimings,
 }
@@ -730,6 +739,35 @@ fn check_inputs(
     }
 }
 
+/// The label → reference-vertex table that reads `posterior` through the reference's symmetry,
+/// where the forest's own map reads as a mirror image as a whole: its orientation score
+/// ([`map_orientation`]) is below minus [`RegularizerParams::unflip`]'s threshold (the
+/// descriptors are intrinsic, so a forest can predict a mirror image of a whole scan; the game
+/// and the repair of mirrored parts then turn back most of it but not all). `None` where the
+/// prediction is read as it is: it does not read as mirrored, the reference carries no
+/// symmetry, the repair is off, or some vertex has no label.
+fn mirror_table(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    posterior: &LabelledPosterior<'_>,
+    params: &RegularizerParams,
+) -> Option<Vec<usize>> {
+    let (symmetry, threshold) = (reference.symmetry.as_deref()?, params.unflip?);
+    let forest_map: Vec<usize> = posterior
+        .prediction
+        .map_labels()
+        .into_iter()
+        .map(|l| l.map(|l| posterior.vertex(l)))
+        .collect::<Option<_>>()?;
+    (map_orientation(&test.mesh, &reference.mesh, &forest_map).score < -threshold)
+        .then(|| through_symmetry(posterior, symmetry))
+}
+
+/// `posterior`'s label → reference-vertex table with every vertex replaced by its mirror image.
+fn through_symmetry(posterior: &LabelledPosterior<'_>, symmetry: &[usize]) -> Vec<usize> {
+    (0..posterior.prediction.n_labels()).map(|l| symmetry[posterior.vertex(l as u32)]).collect()
+}
+
 /// Regularises a forest prediction for `test` against `reference`: [`sparse_matches`] then
 /// [`dense_map`].
 ///
@@ -755,7 +793,10 @@ pub fn sparse_matches(
     params: &RegularizerParams,
 ) -> Result<SparseMatches, Error> {
     check_inputs(test, reference, prediction, label_to_vertex, params)?;
-    let posterior = LabelledPosterior { prediction, label_to_vertex };
+    let mirrored = mirror_table(test, reference, &LabelledPosterior { prediction, label_to_vertex }, params);
+    let prediction_mirrored = mirrored.is_some();
+    let posterior =
+        LabelledPosterior { prediction, label_to_vertex: mirrored.as_deref().or(label_to_vertex) };
     let mut timings = RegularizerTimings::default();
     // 1–2. Samples and candidates.
     let t0 = Instant::now();
@@ -844,6 +885,7 @@ pub fn sparse_matches(
         matches,
         orientation_score,
         mirror_rejected,
+        prediction_mirrored,
         timings,
     })
 }
@@ -880,7 +922,18 @@ pub fn dense_map(
 ) -> Result<DenseMap, Error> {
     check_inputs(test, reference, prediction, label_to_vertex, params)?;
     let n_ref = reference.mesh.n_vertices();
-    let posterior = LabelledPosterior { prediction, label_to_vertex };
+    let plain = LabelledPosterior { prediction, label_to_vertex };
+    let mirrored = match (sparse.prediction_mirrored, reference.symmetry.as_deref()) {
+        (false, _) => None,
+        (true, Some(symmetry)) => Some(through_symmetry(&plain, symmetry)),
+        (true, None) => {
+            return Err(Error::InvalidInput(
+                "sparse matches of a mirrored prediction need the reference's symmetry".into(),
+            ))
+        }
+    };
+    let posterior =
+        LabelledPosterior { prediction, label_to_vertex: mirrored.as_deref().or(label_to_vertex) };
     let mut timings = sparse.timings;
     let SparseMatches { test_fields, ref_fields, game, .. } = sparse;
     // 5. Functional maps.
@@ -963,7 +1016,7 @@ pub fn dense_map(
         None => (map, None),
     };
 
-    let forest_map = prediction.map_labels().into_iter().map(|l| l.map(|l| posterior.vertex(l))).collect();
+    let forest_map = prediction.map_labels().into_iter().map(|l| l.map(|l| plain.vertex(l))).collect();
     Ok(DenseMap {
         map,
         anchor_map,
@@ -979,6 +1032,7 @@ pub fn dense_map(
         matches: sparse.matches.clone(),
         orientation_score: sparse.orientation_score,
         mirror_rejected: sparse.mirror_rejected,
+        prediction_mirrored: sparse.prediction_mirrored,
         timings,
     })
 }

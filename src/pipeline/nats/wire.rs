@@ -405,6 +405,8 @@ pub struct WireDense {
     matches: Vec<VertexMatch>,
     orientation_score: f64,
     mirror_rejected: bool,
+    #[serde(default)]
+    prediction_mirrored: bool,
     timings: RegularizerTimings,
 }
 
@@ -426,6 +428,7 @@ impl WireDense {
             matches: d.matches.clone(),
             orientation_score: d.orientation_score,
             mirror_rejected: d.mirror_rejected,
+            prediction_mirrored: d.prediction_mirrored,
             timings: d.timings,
         }
     }
@@ -450,6 +453,7 @@ impl WireDense {
             matches: self.matches,
             orientation_score: self.orientation_score,
             mirror_rejected: self.mirror_rejected,
+            prediction_mirrored: self.prediction_mirrored,
             timings: self.timings,
         })
     }
@@ -469,6 +473,8 @@ pub struct WireSparse {
     matches: Vec<VertexMatch>,
     orientation_score: f64,
     mirror_rejected: bool,
+    #[serde(default)]
+    prediction_mirrored: bool,
     timings: RegularizerTimings,
 }
 
@@ -487,6 +493,7 @@ impl WireSparse {
             matches: s.matches.clone(),
             orientation_score: s.orientation_score,
             mirror_rejected: s.mirror_rejected,
+            prediction_mirrored: s.prediction_mirrored,
             timings: s.timings,
         }
     }
@@ -526,6 +533,7 @@ impl WireSparse {
             matches: self.matches,
             orientation_score: self.orientation_score,
             mirror_rejected: self.mirror_rejected,
+            prediction_mirrored: self.prediction_mirrored,
             timings: self.timings,
         })
     }
