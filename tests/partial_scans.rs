@@ -9,10 +9,11 @@ use shapeforest::{
         protocol::{run_protocol, Method, ProtocolParams, ProtocolReport, ProtocolShape},
         PooledReport,
     },
-    forest::RandomForest,
+    forest::{augmented_shape, RandomForest},
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, read_mesh, vertex_components, write_mesh, Perturbation},
-    regularizer::{PartialScanParams, RegularizerParams, ZoomOutParams},
+    regularizer::{PartialScanParams, RegularizerParams, ScanPart, ZoomOutParams},
+    spectral::{compute_spectrum, Spectrum, SpectrumParams},
     synth::{creature_family, CreatureParams},
 };
 
@@ -78,6 +79,29 @@ fn small_holes_barely_change_the_accuracy_and_errors_are_measured_where_the_scan
     println!("clean {c:.3}, five holes {h:.3}");
     assert!(c > 0.9, "clean scans: {c}");
     assert!(h > 0.85, "five small holes: {h}");
+}
+
+#[test]
+fn a_training_copy_with_small_holes_is_closed_as_a_scan_is_before_its_spectrum() {
+    let (shapes, _) = shapes_and_symmetry(3000, 1);
+    let mesh = &shapes[0].mesh;
+    let labels: Vec<Option<u32>> = (0..mesh.n_vertices() as u32).map(Some).collect();
+    let holes = [Perturbation::Holes { count: 5, radius: 0.03 }];
+    let sp = SpectrumParams::new(30);
+    let whole = compute_spectrum(mesh, &sp).expect("spectrum").renormalised(mesh.surface_area());
+    let copy = |fill| augmented_shape("c", mesh, &labels, &holes, 7, fill, &sp, None).expect("copy");
+    let (open, closed) = (copy(None), copy(Some(ScanPart::FILL_PERIMETER)));
+    // The closed copy's spectrum lives on the copy's own vertices, labelled alike.
+    assert_eq!(open.labels, closed.labels);
+    assert_eq!(closed.spectrum.n_vertices, open.labels.len());
+    assert!(open.labels.len() < mesh.n_vertices(), "the holes removed vertices");
+    // Its eigenvalues are the whole shape's again, as a scan's are once its holes are closed.
+    let gap = |s: &Spectrum| {
+        (1..30).map(|k| (s.eigenvalues[k] / whole.eigenvalues[k] - 1.0).abs()).sum::<f64>() / 29.0
+    };
+    let (g_open, g_closed) = (gap(&open.spectrum), gap(&closed.spectrum));
+    println!("mean relative eigenvalue gap to the whole shape: open {g_open:.4}, closed {g_closed:.4}");
+    assert!(g_closed < 0.5 * g_open, "closing the copy's holes: {g_open} -> {g_closed}");
 }
 
 #[test]

@@ -4,6 +4,7 @@ use std::{fs::File, io::BufReader, path::PathBuf, sync::Arc, time::Instant};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use rayon::prelude::*;
 use shapeforest::{
     forest::{
         labels_identity, per_vertex_labels, read_label_map, read_per_label_rows, reference_table,
@@ -345,27 +346,33 @@ pub fn run(args: TrainArgs) -> Result<()> {
             None => None,
         };
         let sp = shapeforest::spectral::SpectrumParams::new(args.k);
-        for (i, s) in shapes.iter().enumerate() {
-            for (kind_index, kind) in args.augment.iter().enumerate() {
-                for copy in 0..args.augment_copies {
-                    let seed = args.seed
-                        ^ ((i as u64) << 32 | (kind_index as u64) << 16 | copy as u64)
-                            .wrapping_mul(0x9e37_79b9_7f4a_7c15);
-                    augmented.push(
-                        shapeforest::forest::augmented_shape(
-                            &s.name,
-                            &s.mesh,
-                            &s.labels,
-                            std::slice::from_ref(kind),
-                            seed,
-                            &sp,
-                            cache.as_ref(),
-                        )
-                        .with_context(|| format!("cannot make a perturbed copy of {}", s.name))?,
-                    );
-                }
-            }
-        }
+        // Every copy with its own spectrum, built in parallel; small holes closed as a scan's
+        // are when it is matched.
+        let copies: Vec<(usize, usize, usize)> = (0..shapes.len())
+            .flat_map(|i| {
+                (0..args.augment.len()).flat_map(move |k| (0..args.augment_copies).map(move |c| (i, k, c)))
+            })
+            .collect();
+        augmented = copies
+            .par_iter()
+            .map(|&(i, kind_index, copy)| {
+                let s = &shapes[i];
+                let seed = args.seed
+                    ^ ((i as u64) << 32 | (kind_index as u64) << 16 | copy as u64)
+                        .wrapping_mul(0x9e37_79b9_7f4a_7c15);
+                shapeforest::forest::augmented_shape(
+                    &s.name,
+                    &s.mesh,
+                    &s.labels,
+                    std::slice::from_ref(&args.augment[kind_index]),
+                    seed,
+                    Some(shapeforest::regularizer::ScanPart::FILL_PERIMETER),
+                    &sp,
+                    cache.as_ref(),
+                )
+                .with_context(|| format!("cannot make a perturbed copy of {}", s.name))
+            })
+            .collect::<Result<Vec<_>>>()?;
         eprintln!("{} perturbed copies in {:.1} s", augmented.len(), t0.elapsed().as_secs_f64());
     }
     let mut training: Vec<TrainingShape> = shapes

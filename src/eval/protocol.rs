@@ -37,6 +37,7 @@
 //! The protocol is pure orchestration: no printing; progress is reported through an optional
 //! callback. Spectra go through a [`SpectrumCache`] when a cache directory is given.
 
+use rayon::prelude::*;
 use std::{collections::HashMap, path::PathBuf, sync::Arc, time::Instant};
 
 use faer::Mat;
@@ -614,25 +615,33 @@ pub fn run_protocol(
                     labels: labels_of(&shapes[s]),
                 });
             }
-            for &s in &key {
-                let labels = labels_of(&shapes[s]);
-                for (kind_index, kind) in params.augment.iter().enumerate() {
-                    for copy in 0..params.augment_copies {
-                        let seed = params.seed
-                            ^ ((s as u64) << 32 | (kind_index as u64) << 16 | copy as u64)
-                                .wrapping_mul(0x9e37_79b9_7f4a_7c15);
-                        members.push(augmented_shape(
-                            &shapes[s].name,
-                            &shapes[s].mesh,
-                            &labels,
-                            kind,
-                            seed,
-                            &params.spectrum,
-                            cache.as_ref(),
-                        )?);
-                    }
-                }
-            }
+            // The perturbed copies, each with its own spectrum: built in parallel.
+            let copies: Vec<(usize, usize, usize)> = key
+                .iter()
+                .flat_map(|&s| {
+                    (0..params.augment.len())
+                        .flat_map(move |k| (0..params.augment_copies).map(move |c| (s, k, c)))
+                })
+                .collect();
+            let augmented = copies
+                .par_iter()
+                .map(|&(s, kind_index, copy)| {
+                    let seed = params.seed
+                        ^ ((s as u64) << 32 | (kind_index as u64) << 16 | copy as u64)
+                            .wrapping_mul(0x9e37_79b9_7f4a_7c15);
+                    augmented_shape(
+                        &shapes[s].name,
+                        &shapes[s].mesh,
+                        &labels_of(&shapes[s]),
+                        &params.augment[kind_index],
+                        seed,
+                        params.fill_holes,
+                        &params.spectrum,
+                        cache.as_ref(),
+                    )
+                })
+                .collect::<Result<Vec<_>, _>>()?;
+            members.extend(augmented);
             let set = TrainingSet::new(members, n_labels)?;
             let t0 = Instant::now();
             let forest = forest_params.fit(&set)?;

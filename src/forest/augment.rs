@@ -3,27 +3,33 @@
 //! perturbed copies (holes, single-view scans, crops; see [`crate::mesh::perturb`]), so the
 //! forest's splits pick descriptor components that survive missing surface.
 //!
-//! A copy is matched as a scan would be: its largest connected component, normalised by the
-//! area of the whole shape (the training shape is complete, so its area is the body's), and
-//! labelled through the perturbation's vertex map.
+//! A copy is prepared as a scan would be: its largest connected component, its small holes
+//! closed before the spectrum is computed (as `regularizer::ScanPart` closes a scan's), the
+//! spectrum normalised by the area of the whole shape (the training shape is complete, so its
+//! area is the body's), and labelled through the perturbation's vertex map.
 
 use std::sync::Arc;
 
 use super::{ForestError, TrainingShape};
 use crate::{
-    mesh::{largest_component, perturb, perturbations_name, Mesh, Perturbation},
+    mesh::{fill_holes, largest_component, perturb, perturbations_name, Mesh, Perturbation},
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
 /// A perturbed copy of a labelled shape as a training shape: `perturbations` applied with
-/// `seed`, the largest component kept, its spectrum (through `cache` when given) normalised by
-/// the area of `mesh`, its vertices labelled as in `labels` (one entry per vertex of `mesh`).
+/// `seed`, the largest component kept, its holes of perimeter at most
+/// `fill_perimeter·√area(mesh)` closed for the spectrum (`None`: left open; a scan's are closed
+/// at `regularizer::ScanPart::FILL_PERIMETER` of the reference's), its spectrum (through
+/// `cache` when given) normalised by the area of `mesh` and restricted to the part's vertices,
+/// its vertices labelled as in `labels` (one entry per vertex of `mesh`).
+#[allow(clippy::too_many_arguments)]
 pub fn augmented_shape(
     name: &str,
     mesh: &Mesh,
     labels: &[Option<u32>],
     perturbations: &[Perturbation],
     seed: u64,
+    fill_perimeter: Option<f64>,
     spectrum: &SpectrumParams,
     cache: Option<&SpectrumCache>,
 ) -> Result<TrainingShape, ForestError> {
@@ -32,8 +38,12 @@ pub fn augmented_shape(
         Some((m, k)) => (m, k.iter().map(|&v| p.kept[v]).collect::<Vec<_>>()),
         None => (p.mesh, p.kept),
     };
-    let sp: Spectrum = spectrum_cached(&part, spectrum, cache)?;
-    let sp = sp.renormalised(mesh.surface_area());
+    let area = mesh.surface_area();
+    // The closed mesh keeps the part's vertices first, so its spectrum restricted to them is
+    // the part's.
+    let closed = fill_perimeter.map(|f| fill_holes(&part, f * area.sqrt())).filter(|(_, n)| *n > 0);
+    let sp: Spectrum = spectrum_cached(closed.as_ref().map_or(&part, |(m, _)| m), spectrum, cache)?;
+    let sp = sp.renormalised(area).restricted(part.n_vertices());
     Ok(TrainingShape {
         name: format!("{name}~{}#{seed}", perturbations_name(perturbations)),
         spectrum: Arc::new(sp),
