@@ -122,6 +122,27 @@ fn a_single_view_scan_is_matched_once_the_forest_has_seen_single_views() {
 }
 
 #[test]
+fn a_single_view_is_left_as_grown_by_the_refinement() {
+    let zoomout = RegularizerParams { zoomout: Some(ZoomOutParams::default()), ..Default::default() };
+    let report = run_with(vec![Perturbation::PARTIAL_VIEW], vec![], zoomout);
+    let mut small = 0;
+    for t in &report.tests {
+        let grown = &t.errors(Method::ForestRegularized).expect("regularised map").map;
+        let refined = &t.errors(Method::ForestZoomOut).expect("refined map").map;
+        // Under half of the body: the partial ZoomOut lost points there, so the map is kept.
+        if t.area_fraction < 0.45 {
+            small += 1;
+            assert_eq!(
+                grown, refined,
+                "test {}: a part of {:.2} of the area is not refined",
+                t.test, t.area_fraction
+            );
+        }
+    }
+    assert!(small > 0, "single views keep less than half of the surface");
+}
+
+#[test]
 fn a_scan_missing_a_fifth_of_its_surface_is_refined_by_the_partial_zoomout() {
     let holes = vec![Perturbation::Holes { count: 3, radius: 0.15 }];
     let zoomout = RegularizerParams { zoomout: Some(ZoomOutParams::default()), ..Default::default() };

@@ -89,6 +89,9 @@ pub struct EvalArgs {
     /// Trees per forest.
     #[arg(long, default_value_t = 15)]
     pub trees: usize,
+    /// Eigenpairs of every shape's spectrum, the descriptors' basis (K; `train --k`).
+    #[arg(short, long, default_value_t = 100)]
+    pub k: usize,
     /// Evaluated ground-truth points per test shape.
     #[arg(long, default_value_t = 1000)]
     pub eval_points: usize,
@@ -790,6 +793,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         seed: args.seed,
         eval_points: args.eval_points,
         forest: RandomForest::params().n_trees(args.trees).seed(args.seed),
+        spectrum: SpectrumParams::new(args.k),
         cache_dir: (!args.no_cache).then(|| args.cache.clone()),
         perturbations: args.perturbations(),
         skip_baseline: args.no_baseline,

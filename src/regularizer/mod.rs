@@ -52,7 +52,7 @@ pub use pair::{
 };
 pub use partial::{
     boundary_distances, pair_trust, partial_area_ratio, refine_zoomout_partial, PartialScanParams,
-    PARTIAL_AREA_RATIO,
+    MIN_REFINED_AREA_RATIO, PARTIAL_AREA_RATIO,
 };
 pub use refine::{cell_balls, map_distortion, refine_zoomout, sample_cells, select_by_posterior};
 pub use relay::{nearest_pose, poses_by_nearness, through_labels, vote_maps, POSE_SAMPLES};
@@ -1093,8 +1093,11 @@ fn refine_with(
     z: &ZoomOutParams,
     params: &RegularizerParams,
 ) -> Result<Option<Vec<usize>>, Error> {
-    // An open part of the reference gets the partial (rectangular) ZoomOut.
+    // An open part of the reference gets the partial (rectangular) ZoomOut; a small part none.
     let partial = refines_partially(test, reference, params);
+    if partial && partial_area_ratio(test, reference).is_some_and(|r| r < MIN_REFINED_AREA_RATIO) {
+        return Ok(None);
+    }
     let zoom = |m: &[usize]| {
         if partial {
             refine_zoomout_partial(test, reference, m, z)
