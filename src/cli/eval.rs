@@ -151,7 +151,7 @@ pub struct EvalArgs {
     #[arg(long, value_name = "KIND", value_parser = parse_augment)]
     pub augment: Vec<Perturbation>,
     /// Perturbed copies per training shape and --augment kind.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 15)]
     pub augment_copies: usize,
     /// Also measure the regularised map refined by ZoomOut (the `forest+reg+zo` row). With
     /// --pairs / --protocol, ZoomOut is on by default (maps onto the reference and pair maps).

@@ -50,7 +50,7 @@ pub struct TrainArgs {
     #[arg(long, value_name = "KIND", value_parser = super::eval::parse_augment)]
     pub augment: Vec<shapeforest::mesh::Perturbation>,
     /// Perturbed copies per training shape and --augment kind.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 15)]
     pub augment_copies: usize,
     /// Leave out a shape that cannot be used (unreadable, wrong vertex count, a label map of
     /// the wrong length) with a warning, instead of failing.

@@ -130,7 +130,8 @@ pub struct ProtocolParams {
     /// seeded perturbed copies of each training shape join the training set (see
     /// [`crate::forest::augmented_shape`]). Default: none.
     pub augment: Vec<Vec<Perturbation>>,
-    /// Copies per training shape and augmentation kind (default 4).
+    /// Copies per training shape and augmentation kind (default 15: on single views of SCAPE,
+    /// 4 copies reach 17.9 % within 0.05, 15 copies 26.1 %, 60 copies 29.1 %).
     pub augment_copies: usize,
     /// Diagnose every test ([`TestResult::diagnosis`]): how many evaluated points are right
     /// at each stage of the regulariser, and with each of these variants of its settings
@@ -199,7 +200,7 @@ impl Default for ProtocolParams {
             partial_scale: true,
             fill_holes: Some(ScanPart::FILL_PERIMETER),
             augment: Vec::new(),
-            augment_copies: 4,
+            augment_copies: 15,
             diagnose: None,
             relay: true,
             relay_votes: 1,
