@@ -308,3 +308,52 @@ fn a_sym_vts_in_labeled_gives_the_daemons_model_its_reference_symmetry() {
     assert!(acc >= 0.8, "scan6 → {name}: {:.1} % within 0.05", 100.0 * acc);
     d.stop();
 }
+
+/// `augment` in the trainer's settings: the daemon's model learns single views from seeded
+/// single-view copies of every training shape, and matches a single-view scan better than the
+/// model that saw complete shapes only.
+#[test]
+fn a_daemon_trainer_with_augment_learns_single_views_from_copies() {
+    use shapeforest::mesh::{perturb, Perturbation};
+    let fam = family(8);
+    let view = perturb(&fam.shapes[7], &[Perturbation::PARTIAL_VIEW], 3).unwrap();
+    let reference = &fam.shapes[0];
+    let run = |augment: bool| -> (f64, String) {
+        let tmp = tempfile::tempdir().unwrap();
+        let data = tmp.path().join("data");
+        let edit = move |t: String| {
+            if augment {
+                t.replacen(
+                    "trees_per_update = 5",
+                    "trees_per_update = 5\naugment = [\"partial-view\"]\naugment_copies = 6",
+                    1,
+                )
+            } else {
+                t
+            }
+        };
+        let mut d = Daemon::start_with(&data, true, edit, &[]);
+        let incoming = data.join("incoming");
+        wait_until(&mut d, "the first model", || !manifests(&data).is_empty());
+        drop_mesh(&incoming, "view.off", &view.mesh);
+        wait_until(&mut d, "a result", || result_dirs(&data).contains(&"view".to_string()));
+        let map = read_map(&data.join("matched/view"), "view");
+        assert_eq!(map.len(), view.mesh.n_vertices());
+        // Near the truth on the reference (the family shares one indexing).
+        let close = (0..map.len())
+            .filter(|&v| {
+                let (a, b) = (reference.vertices[view.kept[v]], reference.vertices[map[v]]);
+                ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt() < 0.1
+            })
+            .count();
+        let manifest = manifests(&data)[0].to_string();
+        assert!(!manifest.contains('~'), "the manifest names training shapes, not copies: {manifest}");
+        (close as f64 / map.len() as f64, d.stop())
+    };
+    let (plain, plain_log) = run(false);
+    let (learnt, log) = run(true);
+    println!("single view matched within 0.1: complete shapes only {plain:.3}, with copies {learnt:.3}");
+    assert!(plain_log.contains(", 0 perturbed copies"), "{plain_log}");
+    assert!(log.contains("perturbed copies") && !log.contains(", 0 perturbed copies"), "{log}");
+    assert!(learnt > plain + 0.2, "copies must help on a single view: {plain} -> {learnt}");
+}

@@ -76,6 +76,12 @@ input = "match"
 growth_keep = 1.5
 
 [[stage]]
+name = "learn"
+type = "trainer"
+input = "spectra"
+augment = ["partial-view", "holes:3"]
+
+[[stage]]
 name = "read"
 type = "teleport"
 input = "in"
@@ -89,6 +95,7 @@ input = "in"
         "stage `forest`: takes descriptor but `read` emits shape",
         "stage `match` (matcher): top_k = 0",
         "stage `dense` (fmap): growth_keep = 1.5: must be in (0, 1]",
+        "stage `learn` (trainer): augment `holes:3`: expected N:R",
         "unknown stage type `teleport`",
         "stage `read`: the name is used twice",
     ] {

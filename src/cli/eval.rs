@@ -321,17 +321,7 @@ impl EvalArgs {
 
 /// A kind of `--augment`.
 pub(super) fn parse_augment(text: &str) -> Result<Perturbation, String> {
-    if text == "partial-view" {
-        return Ok(Perturbation::PARTIAL_VIEW);
-    }
-    if let Some(rest) = text.strip_prefix("holes:") {
-        return parse_holes(rest);
-    }
-    if let Some(r) = text.strip_prefix("crop:") {
-        let radius = r.parse().map_err(|_| format!("the crop radius {r:?} is not a number"))?;
-        return Ok(Perturbation::Crop { radius });
-    }
-    Err(format!("expected partial-view, holes:N:R or crop:R, got {text:?}"))
+    Perturbation::parse_kind(text)
 }
 
 /// A share of an area: a number in [0, 1].
@@ -357,10 +347,7 @@ pub(super) fn rigid_params(radius: f64) -> Option<shapeforest::regularizer::Loca
 
 /// `N:R` of `--holes`.
 pub(super) fn parse_holes(text: &str) -> Result<Perturbation, String> {
-    let (n, r) = text.split_once(':').ok_or_else(|| format!("expected N:R (e.g. 5:0.015), got {text:?}"))?;
-    let count = n.trim().parse().map_err(|_| format!("the number of holes {n:?} is not a whole number"))?;
-    let radius = r.trim().parse().map_err(|_| format!("the radius {r:?} is not a number"))?;
-    Ok(Perturbation::Holes { count, radius })
+    Perturbation::parse_holes(text)
 }
 
 impl EvalArgs {

@@ -75,6 +75,39 @@ impl Perturbation {
         self.to_string()
     }
 
+    /// A training-set augmentation kind as written on the command line and in pipeline files:
+    /// `partial-view`, `holes:N:R` or `crop:R`.
+    ///
+    /// ```
+    /// use shapeforest::mesh::Perturbation;
+    /// assert_eq!(Perturbation::parse_kind("holes:3:0.1"), Ok(Perturbation::Holes { count: 3, radius: 0.1 }));
+    /// assert_eq!(Perturbation::parse_kind("partial-view"), Ok(Perturbation::PARTIAL_VIEW));
+    /// assert!(Perturbation::parse_kind("holes:3").unwrap_err().contains("expected N:R"));
+    /// ```
+    pub fn parse_kind(text: &str) -> Result<Perturbation, String> {
+        if text == "partial-view" {
+            return Ok(Perturbation::PARTIAL_VIEW);
+        }
+        if let Some(rest) = text.strip_prefix("holes:") {
+            return Self::parse_holes(rest);
+        }
+        if let Some(r) = text.strip_prefix("crop:") {
+            let radius = r.parse().map_err(|_| format!("the crop radius {r:?} is not a number"))?;
+            return Ok(Perturbation::Crop { radius });
+        }
+        Err(format!("expected partial-view, holes:N:R or crop:R, got {text:?}"))
+    }
+
+    /// Holes written `N:R` (N holes of radius R·√area).
+    pub fn parse_holes(text: &str) -> Result<Perturbation, String> {
+        let (n, r) =
+            text.split_once(':').ok_or_else(|| format!("expected N:R (e.g. 5:0.015), got {text:?}"))?;
+        let count =
+            n.trim().parse().map_err(|_| format!("the number of holes {n:?} is not a whole number"))?;
+        let radius = r.trim().parse().map_err(|_| format!("the radius {r:?} is not a number"))?;
+        Ok(Perturbation::Holes { count, radius })
+    }
+
     fn check(&self) -> Result<(), MeshError> {
         let bad = |what: &str| Err(MeshError::InvalidPerturbation(format!("{self}: {what}")));
         match *self {

@@ -13,14 +13,17 @@
 
 use std::{collections::HashMap, fs, path::Path, sync::Arc, time::Instant};
 
+use rayon::prelude::*;
 use serde::Deserialize;
+use sha2::{Digest, Sha256};
 
 use crate::{
     forest::{
-        reference_table, ModelReference, RandomForest, RandomForestValidParams, TrainingSet, TrainingShape,
+        augmented_shape, reference_table, ModelReference, RandomForest, RandomForestValidParams, TrainingSet,
+        TrainingShape,
     },
     geodesic::HeatParams,
-    mesh::{read_mesh_limited, write_mesh, Mesh},
+    mesh::{read_mesh_limited, write_mesh, Mesh, Perturbation},
     pipeline::{
         actor::Sink,
         config::{parse_config, AnyPort, Builder, PortType, StageConfig, StageType},
@@ -34,7 +37,7 @@ use crate::{
             stored_shapes, symmetry_sidecar, unix_now, DataDir, InputKind, ModelManifest,
         },
     },
-    regularizer::{symmetry_from_pairs, PreparedShape},
+    regularizer::{symmetry_from_pairs, PreparedShape, ScanPart},
     spectral::{SpectrumCache, SpectrumParams},
 };
 
@@ -45,7 +48,8 @@ impl StageConfig for TrainerConfig {
         parse: parse_config::<TrainerConfig>,
     };
     fn check(&self) -> Result<(), String> {
-        self.forest_params().map(|_| ())
+        self.forest_params()?;
+        self.augment_kinds().map(|_| ())
     }
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
         let Some(AnyPort::Spectrum(i)) = input else { return Err(b.wrong_input()) };
@@ -113,6 +117,19 @@ pub struct TrainerConfig {
     /// (milliseconds), so shapes dropped together make one update. Default 2000.
     #[serde(default = "default_quiet")]
     pub quiet_ms: u64,
+    /// Learn partiality from examples (as `train --augment`): every training shape is also
+    /// presented as `augment_copies` seeded perturbed copies of each of these kinds
+    /// (`partial-view`, `holes:N:R`, `crop:R`), each prepared as a scan is (largest piece, small
+    /// holes closed). Default: none.
+    #[serde(default)]
+    pub augment: Vec<String>,
+    /// Perturbed copies per training shape and `augment` kind. Default 15.
+    #[serde(default = "default_augment_copies")]
+    pub augment_copies: usize,
+}
+
+fn default_augment_copies() -> usize {
+    15
 }
 
 fn default_quiet() -> u64 {
@@ -152,6 +169,8 @@ impl Default for TrainerConfig {
             keep_models: default_keep(),
             fresh: false,
             quiet_ms: default_quiet(),
+            augment: Vec::new(),
+            augment_copies: default_augment_copies(),
         }
     }
 }
@@ -168,6 +187,14 @@ impl TrainerConfig {
             .seed(self.seed)
             .check()
             .map_err(|e| e.to_string())
+    }
+
+    /// The `augment` kinds, parsed; the first bad one named.
+    pub fn augment_kinds(&self) -> Result<Vec<Perturbation>, String> {
+        self.augment
+            .iter()
+            .map(|k| Perturbation::parse_kind(k).map_err(|e| format!("augment `{k}`: {e}")))
+            .collect()
     }
 }
 
@@ -229,6 +256,10 @@ pub struct TrainerSink {
     pending: Vec<(Job, SpectralShape)>,
     /// Shapes already learnt, loaded on the first update.
     known: HashMap<String, TrainingShape>,
+    /// The `augment` kinds.
+    augment: Vec<Perturbation>,
+    /// The perturbed copies of each training shape (by name), made once.
+    copies: HashMap<String, Vec<TrainingShape>>,
     /// When the last shape arrived.
     last_arrival: Instant,
     /// Eigenpairs of the spectra it receives (for shapes it reads back from `training/`).
@@ -248,6 +279,7 @@ impl TrainerSink {
         live: Arc<LiveModel>,
     ) -> Result<Self, Error> {
         let params = config.forest_params().map_err(Error::Training)?;
+        let augment = config.augment_kinds().map_err(Error::Training)?;
         let cache = SpectrumCache::new(data.cache()).ok();
         Ok(Self {
             data,
@@ -258,6 +290,8 @@ impl TrainerSink {
             cache,
             pending: Vec::new(),
             known: HashMap::new(),
+            augment,
+            copies: HashMap::new(),
             last_arrival: Instant::now(),
             spectrum_k: SpectrumParams::default().k,
             shutdown: None,
@@ -367,14 +401,52 @@ impl TrainerSink {
             if self.known.contains_key(name) {
                 continue;
             }
-            let (_, labels, spectrum) =
+            let (mesh, labels, spectrum) =
                 load_stored(&self.data.training(), name, &params, self.cache.as_ref(), &self.limits)?;
+            self.make_copies(name, &mesh, &labels, k);
             self.known.insert(
                 name.clone(),
                 TrainingShape { name: name.clone(), spectrum: Arc::new(spectrum), labels },
             );
         }
         Ok(())
+    }
+
+    /// The perturbed copies of a training shape (the `augment` kinds), made once per shape and
+    /// seeded by its name, so every update and every restart learns the same copies. A copy
+    /// that cannot be made (a view that leaves too little of the shape) is left out with a
+    /// warning.
+    fn make_copies(&mut self, name: &str, mesh: &Mesh, labels: &[Option<u32>], k: usize) {
+        if self.augment.is_empty() || self.copies.contains_key(name) {
+            return;
+        }
+        let params = SpectrumParams::new(k);
+        let digest = Sha256::digest(name.as_bytes());
+        let base = self.config.seed ^ u64::from_le_bytes(digest[..8].try_into().unwrap_or_default());
+        let jobs: Vec<(usize, usize)> = (0..self.augment.len())
+            .flat_map(|kind| (0..self.config.augment_copies).map(move |c| (kind, c)))
+            .collect();
+        let (augment, cache) = (&self.augment, self.cache.as_ref());
+        let copies: Vec<TrainingShape> = jobs
+            .par_iter()
+            .filter_map(|&(kind, copy)| {
+                let seed = base ^ ((kind as u64) << 16 | copy as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+                let kinds = std::slice::from_ref(&augment[kind]);
+                augmented_shape(
+                    name,
+                    mesh,
+                    labels,
+                    kinds,
+                    seed,
+                    Some(ScanPart::FILL_PERIMETER),
+                    &params,
+                    cache,
+                )
+                .map_err(|e| tracing::warn!(shape = %name, "a perturbed copy left out: {e}"))
+                .ok()
+            })
+            .collect();
+        self.copies.insert(name.to_string(), copies);
     }
 
     /// The reference of a first model among the accepted shapes: the configured one, else the
@@ -565,9 +637,17 @@ impl TrainerSink {
         if accepted.is_empty() {
             return Ok(());
         }
+        for (_, shape, ts) in &accepted {
+            self.make_copies(&ts.name, &shape.shape.mesh, &ts.labels, k);
+        }
         let mut shapes: Vec<TrainingShape> = self.known.values().cloned().collect();
         shapes.extend(accepted.iter().map(|a| a.2.clone()));
         shapes.sort_by_key(|a| natural_key(&a.name));
+        let real: std::collections::HashSet<String> = shapes.iter().map(|s| s.name.clone()).collect();
+        let copies: Vec<TrainingShape> =
+            shapes.iter().flat_map(|s| self.copies.get(&s.name).into_iter().flatten().cloned()).collect();
+        let n_copies = copies.len();
+        shapes.extend(copies);
         let set = TrainingSet::new(shapes, n_labels)?;
         let mut forest = self
             .params
@@ -583,7 +663,9 @@ impl TrainerSink {
         }
         let on_disk = latest_manifest(&self.data.models()).map_or(0, |m| m.version);
         let version = current.as_ref().map_or(0, |m| m.version).max(on_disk) + 1;
-        let names: Vec<String> = set.shapes().iter().map(|s| s.name.clone()).collect();
+        // The manifest names the training shapes, not their copies.
+        let names: Vec<String> =
+            set.shapes().iter().map(|s| s.name.clone()).filter(|n| real.contains(n)).collect();
         let manifest = ModelManifest {
             version,
             model_file: format!("model-v{version:06}.sfm"),
@@ -610,7 +692,7 @@ impl TrainerSink {
         tracing::info!(
             version,
             shapes = names.len(),
-            "model v{version} saved to {} ({} training shapes, {:.1} s)",
+            "model v{version} saved to {} ({} training shapes, {n_copies} perturbed copies, {:.1} s)",
             path.display(),
             names.len(),
             t0.elapsed().as_secs_f64()
