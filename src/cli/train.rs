@@ -4,7 +4,6 @@ use std::{fs::File, io::BufReader, path::PathBuf, sync::Arc, time::Instant};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use rayon::prelude::*;
 use shapeforest::{
     forest::{
         labels_identity, per_vertex_labels, read_label_map, read_per_label_rows, reference_table,
@@ -346,33 +345,26 @@ pub fn run(args: TrainArgs) -> Result<()> {
             None => None,
         };
         let sp = shapeforest::spectral::SpectrumParams::new(args.k);
-        // Every copy with its own spectrum, built in parallel; small holes closed as a scan's
-        // are when it is matched.
-        let copies: Vec<(usize, usize, usize)> = (0..shapes.len())
-            .flat_map(|i| {
-                (0..args.augment.len()).flat_map(move |k| (0..args.augment_copies).map(move |c| (i, k, c)))
-            })
-            .collect();
-        augmented = copies
-            .par_iter()
-            .map(|&(i, kind_index, copy)| {
-                let s = &shapes[i];
-                let seed = args.seed
-                    ^ ((i as u64) << 32 | (kind_index as u64) << 16 | copy as u64)
-                        .wrapping_mul(0x9e37_79b9_7f4a_7c15);
-                shapeforest::forest::augmented_shape(
-                    &s.name,
-                    &s.mesh,
-                    &s.labels,
-                    std::slice::from_ref(&args.augment[kind_index]),
-                    seed,
-                    Some(shapeforest::regularizer::ScanPart::FILL_PERIMETER),
-                    &sp,
-                    cache.as_ref(),
-                )
-                .with_context(|| format!("cannot make a perturbed copy of {}", s.name))
-            })
-            .collect::<Result<Vec<_>>>()?;
+        // Small holes closed as a scan's are when it is matched.
+        let kinds: Vec<Vec<shapeforest::mesh::Perturbation>> =
+            args.augment.iter().map(|&p| vec![p]).collect();
+        let augmentation = shapeforest::forest::Augmentation {
+            kinds: &kinds,
+            copies: args.augment_copies,
+            fill_perimeter: Some(shapeforest::regularizer::ScanPart::FILL_PERIMETER),
+            spectrum: &sp,
+            cache: cache.as_ref(),
+        };
+        for (i, s) in shapes.iter().enumerate() {
+            let copies =
+                shapeforest::forest::augmented_copies(&s.name, &s.mesh, &s.labels, &augmentation, |k, c| {
+                    args.seed
+                        ^ ((i as u64) << 32 | (k as u64) << 16 | c as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+                });
+            for copy in copies {
+                augmented.push(copy.with_context(|| format!("cannot make a perturbed copy of {}", s.name))?);
+            }
+        }
         eprintln!("{} perturbed copies in {:.1} s", augmented.len(), t0.elapsed().as_secs_f64());
     }
     let mut training: Vec<TrainingShape> = shapes

@@ -37,7 +37,6 @@
 //! The protocol is pure orchestration: no printing; progress is reported through an optional
 //! callback. Spectra go through a [`SpectrumCache`] when a cache directory is given.
 
-use rayon::prelude::*;
 use std::{collections::HashMap, path::PathBuf, sync::Arc, time::Instant};
 
 use faer::Mat;
@@ -49,7 +48,8 @@ use super::{geodesic_errors, EvalError};
 use crate::{
     descriptor::WksParams,
     forest::{
-        augmented_shape, Prediction, RandomForest, RandomForestParams, TrainingSet, TrainingShape, WksKnn,
+        augmented_copies, Augmentation, Prediction, RandomForest, RandomForestParams, TrainingSet,
+        TrainingShape, WksKnn,
     },
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, perturbations_name, Mesh, Perturbation},
@@ -616,33 +616,29 @@ pub fn run_protocol(
                     labels: labels_of(&shapes[s]),
                 });
             }
-            // The perturbed copies, each with its own spectrum: built in parallel.
-            let copies: Vec<(usize, usize, usize)> = key
-                .iter()
-                .flat_map(|&s| {
-                    (0..params.augment.len())
-                        .flat_map(move |k| (0..params.augment_copies).map(move |c| (s, k, c)))
-                })
-                .collect();
-            let augmented = copies
-                .par_iter()
-                .map(|&(s, kind_index, copy)| {
-                    let seed = params.seed
-                        ^ ((s as u64) << 32 | (kind_index as u64) << 16 | copy as u64)
-                            .wrapping_mul(0x9e37_79b9_7f4a_7c15);
-                    augmented_shape(
-                        &shapes[s].name,
-                        &shapes[s].mesh,
-                        &labels_of(&shapes[s]),
-                        &params.augment[kind_index],
-                        seed,
-                        params.fill_holes,
-                        &params.spectrum,
-                        cache.as_ref(),
-                    )
-                })
-                .collect::<Result<Vec<_>, _>>()?;
-            members.extend(augmented);
+            let augmentation = Augmentation {
+                kinds: &params.augment,
+                copies: params.augment_copies,
+                fill_perimeter: params.fill_holes,
+                spectrum: &params.spectrum,
+                cache: cache.as_ref(),
+            };
+            for &s in &key {
+                let copies = augmented_copies(
+                    &shapes[s].name,
+                    &shapes[s].mesh,
+                    &labels_of(&shapes[s]),
+                    &augmentation,
+                    |k, c| {
+                        params.seed
+                            ^ ((s as u64) << 32 | (k as u64) << 16 | c as u64)
+                                .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+                    },
+                );
+                for copy in copies {
+                    members.push(copy?);
+                }
+            }
             let set = TrainingSet::new(members, n_labels)?;
             let t0 = Instant::now();
             let forest = forest_params.fit(&set)?;

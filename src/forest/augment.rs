@@ -10,6 +10,8 @@
 
 use std::sync::Arc;
 
+use rayon::prelude::*;
+
 use super::{ForestError, TrainingShape};
 use crate::{
     mesh::{fill_holes, largest_component, perturb, perturbations_name, Mesh, Perturbation},
@@ -49,4 +51,47 @@ pub fn augmented_shape(
         spectrum: Arc::new(sp),
         labels: kept.iter().map(|&v| labels.get(v).copied().flatten()).collect(),
     })
+}
+
+/// What every copy of [`augmented_copies`] shares.
+#[derive(Clone, Copy, Debug)]
+pub struct Augmentation<'a> {
+    /// The kinds (each a list of perturbations applied together).
+    pub kinds: &'a [Vec<Perturbation>],
+    /// Copies of each kind.
+    pub copies: usize,
+    /// See [`augmented_shape`].
+    pub fill_perimeter: Option<f64>,
+    /// The copies' spectra.
+    pub spectrum: &'a SpectrumParams,
+    /// Where spectra are cached, if anywhere.
+    pub cache: Option<&'a SpectrumCache>,
+}
+
+/// The perturbed copies of one labelled shape: `copies` of every kind, copy `c` of kind `k`
+/// made with seed `seed(k, c)` ([`augmented_shape`]), kind by kind, built in parallel.
+pub fn augmented_copies(
+    name: &str,
+    mesh: &Mesh,
+    labels: &[Option<u32>],
+    augmentation: &Augmentation<'_>,
+    seed: impl Fn(usize, usize) -> u64 + Sync,
+) -> Vec<Result<TrainingShape, ForestError>> {
+    let a = augmentation;
+    let jobs: Vec<(usize, usize)> =
+        (0..a.kinds.len()).flat_map(|k| (0..a.copies).map(move |c| (k, c))).collect();
+    jobs.par_iter()
+        .map(|&(k, c)| {
+            augmented_shape(
+                name,
+                mesh,
+                labels,
+                &a.kinds[k],
+                seed(k, c),
+                a.fill_perimeter,
+                a.spectrum,
+                a.cache,
+            )
+        })
+        .collect()
 }

@@ -65,7 +65,7 @@ mod reference;
 mod training;
 mod tree;
 
-pub use augment::augmented_shape;
+pub use augment::{augmented_copies, augmented_shape, Augmentation};
 pub use io::{fnv1a64, ModelHeader, MODEL_FORMAT_VERSION, MODEL_MAGIC};
 pub use knn::WksKnn;
 pub use model::{ForestDescriptor, RandomForest};

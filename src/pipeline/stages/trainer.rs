@@ -13,14 +13,13 @@
 
 use std::{collections::HashMap, fs, path::Path, sync::Arc, time::Instant};
 
-use rayon::prelude::*;
 use serde::Deserialize;
 use sha2::{Digest, Sha256};
 
 use crate::{
     forest::{
-        augmented_shape, reference_table, ModelReference, RandomForest, RandomForestValidParams, TrainingSet,
-        TrainingShape,
+        augmented_copies, reference_table, Augmentation, ModelReference, RandomForest,
+        RandomForestValidParams, TrainingSet, TrainingShape,
     },
     geodesic::HeatParams,
     mesh::{read_mesh_limited, write_mesh, Mesh, Perturbation},
@@ -256,8 +255,8 @@ pub struct TrainerSink {
     pending: Vec<(Job, SpectralShape)>,
     /// Shapes already learnt, loaded on the first update.
     known: HashMap<String, TrainingShape>,
-    /// The `augment` kinds.
-    augment: Vec<Perturbation>,
+    /// The `augment` kinds (each one perturbation).
+    augment: Vec<Vec<Perturbation>>,
     /// The perturbed copies of each training shape (by name), made once.
     copies: HashMap<String, Vec<TrainingShape>>,
     /// When the last shape arrived.
@@ -279,7 +278,7 @@ impl TrainerSink {
         live: Arc<LiveModel>,
     ) -> Result<Self, Error> {
         let params = config.forest_params().map_err(Error::Training)?;
-        let augment = config.augment_kinds().map_err(Error::Training)?;
+        let augment = config.augment_kinds().map_err(Error::Training)?.into_iter().map(|p| vec![p]).collect();
         let cache = SpectrumCache::new(data.cache()).ok();
         Ok(Self {
             data,
@@ -423,29 +422,21 @@ impl TrainerSink {
         let params = SpectrumParams::new(k);
         let digest = Sha256::digest(name.as_bytes());
         let base = self.config.seed ^ u64::from_le_bytes(digest[..8].try_into().unwrap_or_default());
-        let jobs: Vec<(usize, usize)> = (0..self.augment.len())
-            .flat_map(|kind| (0..self.config.augment_copies).map(move |c| (kind, c)))
-            .collect();
-        let (augment, cache) = (&self.augment, self.cache.as_ref());
-        let copies: Vec<TrainingShape> = jobs
-            .par_iter()
-            .filter_map(|&(kind, copy)| {
-                let seed = base ^ ((kind as u64) << 16 | copy as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15);
-                let kinds = std::slice::from_ref(&augment[kind]);
-                augmented_shape(
-                    name,
-                    mesh,
-                    labels,
-                    kinds,
-                    seed,
-                    Some(ScanPart::FILL_PERIMETER),
-                    &params,
-                    cache,
-                )
-                .map_err(|e| tracing::warn!(shape = %name, "a perturbed copy left out: {e}"))
-                .ok()
-            })
-            .collect();
+        let augmentation = Augmentation {
+            kinds: &self.augment,
+            copies: self.config.augment_copies,
+            fill_perimeter: Some(ScanPart::FILL_PERIMETER),
+            spectrum: &params,
+            cache: self.cache.as_ref(),
+        };
+        let copies: Vec<TrainingShape> = augmented_copies(name, mesh, labels, &augmentation, |k, c| {
+            base ^ ((k as u64) << 16 | c as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+        })
+        .into_iter()
+        .filter_map(|copy| {
+            copy.map_err(|e| tracing::warn!(shape = %name, "a perturbed copy left out: {e}")).ok()
+        })
+        .collect();
         self.copies.insert(name.to_string(), copies);
     }
 
