@@ -76,10 +76,14 @@ class Forest:
         max_depth: int = 25,
         k: int = 100,
         seed: int = 0,
+        augment: Sequence[str] = (),
+        augment_copies: int = 15,
         progress: Progress = None,
     ) -> "Forest":
         """Trains on labelled meshes. ``labels=None``: the meshes share one vertex indexing and
         label = vertex index. Otherwise one integer array per mesh (``-1`` = unlabelled).
+        ``augment=["partial-view"]`` (also ``"holes:N:R"``, ``"crop:R"``) adds ``augment_copies``
+        seeded perturbed copies of every mesh per kind, so partial scans are learnt.
         ``progress=True`` reports on stderr; a callable gets ``(stage, done, total)``."""
     @staticmethod
     def load(path: Union[str, PathLike[str]]) -> "Forest":

@@ -23,10 +23,13 @@ use rayon::prelude::*;
 use shapeforest::{
     descriptor::{heat_kernel_signature, wave_kernel_signature, HksParams, WksParams},
     eval,
-    forest::{reference_table, ModelReference, RandomForest, TrainingSet, TrainingShape},
+    forest::{
+        augmented_copies, labels_identity, reference_table, Augmentation, ModelReference, RandomForest,
+        TrainingSet, TrainingShape,
+    },
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{self, Mesh as CoreMesh},
-    regularizer::{regularize, PreparedShape, RegularizerParams},
+    regularizer::{regularize, PreparedShape, RegularizerParams, ScanPart},
     spectral::{compute_spectrum, Spectrum as CoreSpectrum, SpectrumParams},
     synth, viz,
 };
@@ -458,10 +461,13 @@ impl PyForest {
     /// family) and label = vertex index of the first mesh. Otherwise one integer array per
     /// mesh: `labels[s][v]` is the label of vertex `v` (`-1` = unlabelled, skipped). Shapes that
     /// cannot be used (wrong vertex count, no labelled vertex) are left out as the CLI does;
-    /// training fails only when none is left. `progress=True` reports spectra and trees on
-    /// stderr; a callable gets `(stage, done, total)`.
+    /// training fails only when none is left. `augment=["partial-view"]` (also `"holes:N:R"`,
+    /// `"crop:R"`) adds `augment_copies` seeded perturbed copies of every mesh per kind, each
+    /// prepared as a scan is, so the forest learns partial scans (as `shapeforest train
+    /// --augment`). `progress=True` reports spectra, copies and trees on stderr; a callable gets
+    /// `(stage, done, total)`.
     #[staticmethod]
-    #[pyo3(signature = (meshes, labels = None, *, n_trees = 15, max_depth = 25, k = 100, seed = 0, progress = None))]
+    #[pyo3(signature = (meshes, labels = None, *, n_trees = 15, max_depth = 25, k = 100, seed = 0, augment = Vec::new(), augment_copies = 15, progress = None))]
     #[allow(clippy::too_many_arguments)]
     fn train(
         py: Python<'_>,
@@ -471,11 +477,21 @@ impl PyForest {
         max_depth: usize,
         k: usize,
         seed: u64,
+        augment: Vec<String>,
+        augment_copies: usize,
         progress: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         if meshes.is_empty() {
             return Err(sf_err("nothing to train on: give at least one mesh"));
         }
+        let kinds: Vec<Vec<mesh::Perturbation>> = augment
+            .iter()
+            .map(|a| {
+                mesh::Perturbation::parse_kind(a)
+                    .map(|p| vec![p])
+                    .map_err(|e| PyValueError::new_err(format!("augment {a:?}: {e}")))
+            })
+            .collect::<PyResult<_>>()?;
         let labels: Option<Vec<Vec<Option<u32>>>> = match labels {
             None => None,
             Some(l) if l.len() != meshes.len() => {
@@ -522,27 +538,68 @@ impl PyForest {
                     Ok(Arc::new(s))
                 })
                 .collect::<Result<_, String>>()?;
+            // Perturbed copies of every mesh, labelled through their vertex maps (a mesh of
+            // another vertex count than the first, in a shared indexing, is rejected below
+            // and gets none).
+            let mut copies = Vec::new();
+            if !kinds.is_empty() {
+                let identity = labels_identity(meshes[0].inner.n_vertices());
+                let sp = SpectrumParams::new(k);
+                let augmentation = Augmentation {
+                    kinds: &kinds,
+                    copies: augment_copies,
+                    fill_perimeter: Some(ScanPart::FILL_PERIMETER),
+                    spectrum: &sp,
+                    cache: None,
+                };
+                let total = meshes.len() * kinds.len() * augment_copies;
+                progress.report("copies", 0, total);
+                for (i, m) in meshes.iter().enumerate() {
+                    let l = match &labels {
+                        Some(l) => &l[i],
+                        None if m.inner.n_vertices() == identity.len() => &identity,
+                        None => continue,
+                    };
+                    let made = augmented_copies(&m.name, &m.inner, l, &augmentation, |kind, c| {
+                        seed ^ ((i as u64) << 32 | (kind as u64) << 16 | c as u64)
+                            .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+                    });
+                    for copy in made {
+                        copies.push(
+                            copy.map_err(|e| format!("cannot make a perturbed copy of {}: {e}", m.name))?,
+                        );
+                    }
+                    progress.report("copies", copies.len(), total);
+                }
+            }
             let names = meshes.iter().enumerate().map(|(i, m)| format!("{} (mesh {i})", m.name));
             // The model stores where its labels lie on the first mesh (the reference), as
             // `shapeforest train` does: the identity for a shared-indexing class, otherwise that
             // mesh's labels with those it lacks placed through the other meshes.
             let first = &meshes[0];
             let (set, reference) = match &labels {
-                None => (
-                    TrainingSet::same_indexing(names.zip(spectra)),
-                    ModelReference::shared_indexing(&first.name, &first.inner),
-                ),
+                None => {
+                    let n = first.inner.n_vertices();
+                    let identity = labels_identity(n);
+                    let mut shapes: Vec<TrainingShape> = names
+                        .zip(spectra)
+                        .map(|(name, spectrum)| TrainingShape { name, spectrum, labels: identity.clone() })
+                        .collect();
+                    shapes.extend(copies);
+                    (TrainingSet::new(shapes, n), ModelReference::shared_indexing(&first.name, &first.inner))
+                }
                 Some(labels) => {
                     let n_labels = labels.iter().flatten().flatten().max().map_or(0, |&l| l as usize + 1);
                     let donors: Vec<(&CoreMesh, &[Option<u32>])> =
                         meshes.iter().zip(labels).skip(1).map(|(m, l)| (&*m.inner, &l[..])).collect();
                     let table = reference_table(n_labels, &first.inner, &labels[0], None, &donors)
                         .map_err(|e| format!("cannot use {} as the reference: {e}", first.name))?;
-                    let shapes = names
+                    let mut shapes: Vec<TrainingShape> = names
                         .zip(spectra)
                         .zip(labels.iter().cloned())
                         .map(|((name, spectrum), labels)| TrainingShape { name, spectrum, labels })
                         .collect();
+                    shapes.extend(copies);
                     (
                         TrainingSet::new(shapes, n_labels),
                         ModelReference::new(&first.name, &first.inner, &table),

@@ -121,6 +121,22 @@ def test_training_with_label_arrays_skips_unlabelled_vertices(creatures, capsys)
         sf.Forest.train(creatures[:3], [labels, labels])
 
 
+def test_training_learns_partial_scans_from_perturbed_copies(creatures):
+    seen = []
+    f = sf.Forest.train(
+        creatures[:3],
+        n_trees=2,
+        seed=1,
+        augment=["partial-view"],
+        augment_copies=2,
+        progress=lambda stage, done, total: seen.append((stage, done, total)),
+    )
+    assert ("copies", 6, 6) in seen, seen  # 3 meshes x 1 kind x 2 copies
+    assert f.n_labels == creatures[0].n_vertices
+    with pytest.raises(ValueError, match="expected N:R"):
+        sf.Forest.train(creatures[:2], augment=["holes:3"])
+
+
 def test_bad_input_raises_with_the_cli_messages(tmp_path, forest, creatures):
     with pytest.raises(ValueError, match=r"vertices must be an \(n, 3\) array"):
         sf.Mesh(np.zeros((4, 2)), [[0, 1, 2]])
