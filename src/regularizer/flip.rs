@@ -272,6 +272,30 @@ mod tests {
     }
 
     #[test]
+    fn a_sparse_match_set_on_a_single_view_reads_as_kept_or_mirrored() {
+        use crate::mesh::{perturb, Perturbation};
+        let fam = crate::synth::creature_family(
+            &crate::synth::CreatureParams { target_vertices: 2000, seed: 3, ..Default::default() },
+            2,
+        )
+        .unwrap();
+        let (reference, posed) = (&fam.shapes[0], &fam.shapes[1]);
+        // A single view of the other pose; ten of its vertices matched to their truth, and to
+        // their truth's mirror image.
+        let view = perturb(posed, &[Perturbation::PARTIAL_VIEW], 5).unwrap();
+        let step = view.kept.len() / 10;
+        let picked: Vec<usize> = (0..10).map(|i| i * step).collect();
+        let kept: Vec<(usize, usize)> = picked.iter().map(|&v| (v, view.kept[v])).collect();
+        let mirrored: Vec<(usize, usize)> = kept.iter().map(|&(v, r)| (v, fam.symmetry[r])).collect();
+        let (k, m) = (
+            matches_orientation(&view.mesh, reference, &kept),
+            matches_orientation(&view.mesh, reference, &mirrored),
+        );
+        assert!(k > 0.5 && m < -0.5, "kept {k}, mirrored {m}");
+        assert_eq!(matches_orientation(&view.mesh, reference, &kept[..2]), 0.0, "no triplet, no reading");
+    }
+
+    #[test]
     fn a_mirror_map_reads_as_reversed_and_the_identity_as_kept() {
         let (mesh, mirror) = ellipsoid_and_mirror();
         let identity: Vec<usize> = (0..mesh.n_vertices()).collect();
@@ -323,5 +347,48 @@ mod tests {
         let n = mesh.n_vertices();
         let err = symmetry_from_pairs(&mesh, &[(0, n)]).unwrap_err().to_string();
         assert!(err.contains("outside"), "{err}");
+    }
+}
+
+/// The orientation of a sparse match set read extrinsically: over every triplet of pairs
+/// `(test vertex, reference vertex)`, whether the triangle turns the same way about the surface
+/// normals on both shapes (+1) or the other way (−1), weighted by how far from degenerate both
+/// triangles are; in [−1, 1] (0 without a usable triplet), negative for a mirror image. Unlike
+/// the spectral orientation descriptors it needs no spectrum of the whole body, so it reads a
+/// single view too.
+pub(crate) fn matches_orientation(test: &Mesh, reference: &Mesh, pairs: &[(usize, usize)]) -> f64 {
+    let (nt, nr) = (vertex_normals(test), vertex_normals(reference));
+    // Signed sine of the triangle (a, b, c) about the mean normal at its corners.
+    let turn = |mesh: &Mesh, normals: &[[f64; 3]], a: usize, b: usize, c: usize| {
+        let (p, q, r) = (mesh.vertices[a], mesh.vertices[b], mesh.vertices[c]);
+        let u = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
+        let v = [r[0] - p[0], r[1] - p[1], r[2] - p[2]];
+        let x = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+        let n: Vec<f64> = (0..3).map(|d| normals[a][d] + normals[b][d] + normals[c][d]).collect();
+        let dot = x[0] * n[0] + x[1] * n[1] + x[2] * n[2];
+        let scale = (u.iter().map(|t| t * t).sum::<f64>() * v.iter().map(|t| t * t).sum::<f64>()).sqrt()
+            * n.iter().map(|t| t * t).sum::<f64>().sqrt();
+        if scale > 0.0 {
+            dot / scale
+        } else {
+            0.0
+        }
+    };
+    let (mut num, mut den) = (0.0, 0.0);
+    for i in 0..pairs.len() {
+        for j in i + 1..pairs.len() {
+            for k in j + 1..pairs.len() {
+                let st = turn(test, &nt, pairs[i].0, pairs[j].0, pairs[k].0);
+                let sr = turn(reference, &nr, pairs[i].1, pairs[j].1, pairs[k].1);
+                let w = st.abs().min(sr.abs());
+                num += w * (st * sr).signum();
+                den += w;
+            }
+        }
+    }
+    if den > 0.0 {
+        num / den
+    } else {
+        0.0
     }
 }

@@ -862,6 +862,21 @@ pub fn sparse_matches(
             mirror_rejected = true;
         }
     }
+    // A small part (a single view): the spectral orientation descriptors do not survive it, so
+    // the equilibrium's orientation is also read extrinsically, and a mirror image is read
+    // through the reference's symmetry (an isometry: the game's consistency is kept).
+    let (mut ref_points, mut ref_fields) = (ref_points, ref_fields);
+    if let (Some(symmetry), Some(threshold)) = (reference.symmetry.as_deref(), params.unflip) {
+        if partial_area_ratio(test, reference).is_some_and(|r| r < MIN_REFINED_AREA_RATIO) {
+            let pairs: Vec<(usize, usize)> =
+                game.matches.iter().map(|m| (samples[m.test], ref_points[m.reference])).collect();
+            if flip::matches_orientation(&test.mesh, &reference.mesh, &pairs) < -threshold {
+                ref_points = ref_points.iter().map(|&r| symmetry[r]).collect();
+                ref_fields = reference.distance_columns(&ref_points)?;
+                mirror_rejected = true;
+            }
+        }
+    }
     timings.matching_s = t0.elapsed().as_secs_f64();
 
     let matches = game
