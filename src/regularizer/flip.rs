@@ -240,6 +240,49 @@ pub fn symmetry_from_pairs(mesh: &Mesh, pairs: &[(usize, usize)]) -> Result<Vec<
     Ok(crate::mesh::extend_map_by_nearest(mesh, &kept, &part_map))
 }
 
+/// The orientation of a sparse match set read extrinsically: over every triplet of pairs
+/// `(test vertex, reference vertex)`, whether the triangle turns the same way about the surface
+/// normals on both shapes (+1) or the other way (−1), weighted by how far from degenerate both
+/// triangles are; in [−1, 1] (0 without a usable triplet), negative for a mirror image. Unlike
+/// the spectral orientation descriptors it needs no spectrum of the whole body, so it reads a
+/// single view too.
+pub(crate) fn matches_orientation(test: &Mesh, reference: &Mesh, pairs: &[(usize, usize)]) -> f64 {
+    let (nt, nr) = (vertex_normals(test), vertex_normals(reference));
+    // Signed sine of the triangle (a, b, c) about the mean normal at its corners.
+    let turn = |mesh: &Mesh, normals: &[[f64; 3]], a: usize, b: usize, c: usize| {
+        let (p, q, r) = (mesh.vertices[a], mesh.vertices[b], mesh.vertices[c]);
+        let u = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
+        let v = [r[0] - p[0], r[1] - p[1], r[2] - p[2]];
+        let x = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+        let n: Vec<f64> = (0..3).map(|d| normals[a][d] + normals[b][d] + normals[c][d]).collect();
+        let dot = x[0] * n[0] + x[1] * n[1] + x[2] * n[2];
+        let scale = (u.iter().map(|t| t * t).sum::<f64>() * v.iter().map(|t| t * t).sum::<f64>()).sqrt()
+            * n.iter().map(|t| t * t).sum::<f64>().sqrt();
+        if scale > 0.0 {
+            dot / scale
+        } else {
+            0.0
+        }
+    };
+    let (mut num, mut den) = (0.0, 0.0);
+    for i in 0..pairs.len() {
+        for j in i + 1..pairs.len() {
+            for k in j + 1..pairs.len() {
+                let st = turn(test, &nt, pairs[i].0, pairs[j].0, pairs[k].0);
+                let sr = turn(reference, &nr, pairs[i].1, pairs[j].1, pairs[k].1);
+                let w = st.abs().min(sr.abs());
+                num += w * (st * sr).signum();
+                den += w;
+            }
+        }
+    }
+    if den > 0.0 {
+        num / den
+    } else {
+        0.0
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -347,48 +390,5 @@ mod tests {
         let n = mesh.n_vertices();
         let err = symmetry_from_pairs(&mesh, &[(0, n)]).unwrap_err().to_string();
         assert!(err.contains("outside"), "{err}");
-    }
-}
-
-/// The orientation of a sparse match set read extrinsically: over every triplet of pairs
-/// `(test vertex, reference vertex)`, whether the triangle turns the same way about the surface
-/// normals on both shapes (+1) or the other way (−1), weighted by how far from degenerate both
-/// triangles are; in [−1, 1] (0 without a usable triplet), negative for a mirror image. Unlike
-/// the spectral orientation descriptors it needs no spectrum of the whole body, so it reads a
-/// single view too.
-pub(crate) fn matches_orientation(test: &Mesh, reference: &Mesh, pairs: &[(usize, usize)]) -> f64 {
-    let (nt, nr) = (vertex_normals(test), vertex_normals(reference));
-    // Signed sine of the triangle (a, b, c) about the mean normal at its corners.
-    let turn = |mesh: &Mesh, normals: &[[f64; 3]], a: usize, b: usize, c: usize| {
-        let (p, q, r) = (mesh.vertices[a], mesh.vertices[b], mesh.vertices[c]);
-        let u = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
-        let v = [r[0] - p[0], r[1] - p[1], r[2] - p[2]];
-        let x = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
-        let n: Vec<f64> = (0..3).map(|d| normals[a][d] + normals[b][d] + normals[c][d]).collect();
-        let dot = x[0] * n[0] + x[1] * n[1] + x[2] * n[2];
-        let scale = (u.iter().map(|t| t * t).sum::<f64>() * v.iter().map(|t| t * t).sum::<f64>()).sqrt()
-            * n.iter().map(|t| t * t).sum::<f64>().sqrt();
-        if scale > 0.0 {
-            dot / scale
-        } else {
-            0.0
-        }
-    };
-    let (mut num, mut den) = (0.0, 0.0);
-    for i in 0..pairs.len() {
-        for j in i + 1..pairs.len() {
-            for k in j + 1..pairs.len() {
-                let st = turn(test, &nt, pairs[i].0, pairs[j].0, pairs[k].0);
-                let sr = turn(reference, &nr, pairs[i].1, pairs[j].1, pairs[k].1);
-                let w = st.abs().min(sr.abs());
-                num += w * (st * sr).signum();
-                den += w;
-            }
-        }
-    }
-    if den > 0.0 {
-        num / den
-    } else {
-        0.0
     }
 }
