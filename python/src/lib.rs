@@ -538,12 +538,13 @@ impl PyForest {
                     Ok(Arc::new(s))
                 })
                 .collect::<Result<_, String>>()?;
+            // The labels of a shared indexing: label = vertex of the first mesh.
+            let identity = labels_identity(meshes[0].inner.n_vertices());
             // Perturbed copies of every mesh, labelled through their vertex maps (a mesh of
             // another vertex count than the first, in a shared indexing, is rejected below
             // and gets none).
             let mut copies = Vec::new();
             if !kinds.is_empty() {
-                let identity = labels_identity(meshes[0].inner.n_vertices());
                 let sp = SpectrumParams::new(k);
                 let augmentation = Augmentation {
                     kinds: &kinds,
@@ -560,10 +561,7 @@ impl PyForest {
                         None if m.inner.n_vertices() == identity.len() => &identity,
                         None => continue,
                     };
-                    let made = augmented_copies(&m.name, &m.inner, l, &augmentation, |kind, c| {
-                        seed ^ ((i as u64) << 32 | (kind as u64) << 16 | c as u64)
-                            .wrapping_mul(0x9e37_79b9_7f4a_7c15)
-                    });
+                    let made = augmented_copies(&m.name, &m.inner, l, &augmentation, seed, i as u64);
                     for copy in made {
                         copies.push(
                             copy.map_err(|e| format!("cannot make a perturbed copy of {}: {e}", m.name))?,
@@ -579,8 +577,7 @@ impl PyForest {
             let first = &meshes[0];
             let (set, reference) = match &labels {
                 None => {
-                    let n = first.inner.n_vertices();
-                    let identity = labels_identity(n);
+                    let n = identity.len();
                     let mut shapes: Vec<TrainingShape> = names
                         .zip(spectra)
                         .map(|(name, spectrum)| TrainingShape { name, spectrum, labels: identity.clone() })

@@ -356,11 +356,14 @@ pub fn run(args: TrainArgs) -> Result<()> {
             cache: cache.as_ref(),
         };
         for (i, s) in shapes.iter().enumerate() {
-            let copies =
-                shapeforest::forest::augmented_copies(&s.name, &s.mesh, &s.labels, &augmentation, |k, c| {
-                    args.seed
-                        ^ ((i as u64) << 32 | (k as u64) << 16 | c as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
-                });
+            let copies = shapeforest::forest::augmented_copies(
+                &s.name,
+                &s.mesh,
+                &s.labels,
+                &augmentation,
+                args.seed,
+                i as u64,
+            );
             for copy in copies {
                 augmented.push(copy.with_context(|| format!("cannot make a perturbed copy of {}", s.name))?);
             }

@@ -629,11 +629,8 @@ pub fn run_protocol(
                     &shapes[s].mesh,
                     &labels_of(&shapes[s]),
                     &augmentation,
-                    |k, c| {
-                        params.seed
-                            ^ ((s as u64) << 32 | (k as u64) << 16 | c as u64)
-                                .wrapping_mul(0x9e37_79b9_7f4a_7c15)
-                    },
+                    params.seed,
+                    s as u64,
                 );
                 for copy in copies {
                     members.push(copy?);

@@ -68,15 +68,21 @@ pub struct Augmentation<'a> {
     pub cache: Option<&'a SpectrumCache>,
 }
 
-/// The perturbed copies of one labelled shape: `copies` of every kind, copy `c` of kind `k`
-/// made with seed `seed(k, c)` ([`augmented_shape`]), kind by kind, built in parallel.
+/// The perturbed copies of one labelled shape: `copies` of every kind ([`augmented_shape`]),
+/// kind by kind, built in parallel. Copy `c` of kind `k` is seeded by `seed` and the shape's
+/// `shape_key` (its index in a training set; 0 where `seed` already tells the shapes apart):
+/// `seed ^ (shape_key << 32 | k << 16 | c) · 0x9e3779b97f4a7c15`.
 pub fn augmented_copies(
     name: &str,
     mesh: &Mesh,
     labels: &[Option<u32>],
     augmentation: &Augmentation<'_>,
-    seed: impl Fn(usize, usize) -> u64 + Sync,
+    seed: u64,
+    shape_key: u64,
 ) -> Vec<Result<TrainingShape, ForestError>> {
+    let copy_seed = |k: usize, c: usize| {
+        seed ^ (shape_key << 32 | (k as u64) << 16 | c as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+    };
     let a = augmentation;
     let jobs: Vec<(usize, usize)> =
         (0..a.kinds.len()).flat_map(|k| (0..a.copies).map(move |c| (k, c))).collect();
@@ -87,7 +93,7 @@ pub fn augmented_copies(
                 mesh,
                 labels,
                 &a.kinds[k],
-                seed(k, c),
+                copy_seed(k, c),
                 a.fill_perimeter,
                 a.spectrum,
                 a.cache,

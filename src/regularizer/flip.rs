@@ -11,7 +11,7 @@
 //! vertices carry no vote.
 
 use super::Error;
-use crate::mesh::Mesh;
+use crate::mesh::{cross, dot, norm, sub, Mesh};
 
 /// Orientation of a vertex map, see the module documentation.
 #[derive(Clone, Debug, PartialEq)]
@@ -250,16 +250,12 @@ pub(crate) fn matches_orientation(test: &Mesh, reference: &Mesh, pairs: &[(usize
     let (nt, nr) = (vertex_normals(test), vertex_normals(reference));
     // Signed sine of the triangle (a, b, c) about the mean normal at its corners.
     let turn = |mesh: &Mesh, normals: &[[f64; 3]], a: usize, b: usize, c: usize| {
-        let (p, q, r) = (mesh.vertices[a], mesh.vertices[b], mesh.vertices[c]);
-        let u = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
-        let v = [r[0] - p[0], r[1] - p[1], r[2] - p[2]];
-        let x = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
-        let n: Vec<f64> = (0..3).map(|d| normals[a][d] + normals[b][d] + normals[c][d]).collect();
-        let dot = x[0] * n[0] + x[1] * n[1] + x[2] * n[2];
-        let scale = (u.iter().map(|t| t * t).sum::<f64>() * v.iter().map(|t| t * t).sum::<f64>()).sqrt()
-            * n.iter().map(|t| t * t).sum::<f64>().sqrt();
+        let p = mesh.vertices[a];
+        let (u, v) = (sub(mesh.vertices[b], p), sub(mesh.vertices[c], p));
+        let n: [f64; 3] = std::array::from_fn(|d| normals[a][d] + normals[b][d] + normals[c][d]);
+        let scale = norm(u) * norm(v) * norm(n);
         if scale > 0.0 {
-            dot / scale
+            dot(cross(u, v), n) / scale
         } else {
             0.0
         }

@@ -867,7 +867,7 @@ pub fn sparse_matches(
     // through the reference's symmetry (an isometry: the game's consistency is kept).
     let (mut ref_points, mut ref_fields) = (ref_points, ref_fields);
     if let (Some(symmetry), Some(threshold)) = (reference.symmetry.as_deref(), params.unflip) {
-        if partial_area_ratio(test, reference).is_some_and(|r| r < MIN_REFINED_AREA_RATIO) {
+        if partial::is_small_part(test, reference) {
             let pairs: Vec<(usize, usize)> =
                 game.matches.iter().map(|m| (samples[m.test], ref_points[m.reference])).collect();
             if flip::matches_orientation(&test.mesh, &reference.mesh, &pairs) < -threshold {
@@ -1110,7 +1110,7 @@ fn refine_with(
 ) -> Result<Option<Vec<usize>>, Error> {
     // An open part of the reference gets the partial (rectangular) ZoomOut; a small part none.
     let partial = refines_partially(test, reference, params);
-    if partial && partial_area_ratio(test, reference).is_some_and(|r| r < MIN_REFINED_AREA_RATIO) {
+    if partial && partial::is_small_part(test, reference) {
         return Ok(None);
     }
     let zoom = |m: &[usize]| {

@@ -84,6 +84,13 @@ pub const PARTIAL_AREA_RATIO: f64 = 0.9;
 /// README "Scans with holes and single views"), where a part of 80 % gains 38.
 pub const MIN_REFINED_AREA_RATIO: f64 = 0.5;
 
+/// Whether `test` is an open part of less than [`MIN_REFINED_AREA_RATIO`] of the reference's
+/// area (a single view): the whole body's spectral cues fail there, so it is not refined and
+/// the game's orientation is read extrinsically.
+pub(super) fn is_small_part(test: &PreparedShape, reference: &PreparedShape) -> bool {
+    partial_area_ratio(test, reference).is_some_and(|r| r < MIN_REFINED_AREA_RATIO)
+}
+
 /// The area of `test` over the reference's when `test` is an open part of it (it has boundary
 /// and less than [`PARTIAL_AREA_RATIO`] of the area; the scan is taken to be at the reference's
 /// scale, as [`super::normalising_area`] does), `None` otherwise.

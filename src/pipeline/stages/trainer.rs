@@ -429,14 +429,13 @@ impl TrainerSink {
             spectrum: &params,
             cache: self.cache.as_ref(),
         };
-        let copies: Vec<TrainingShape> = augmented_copies(name, mesh, labels, &augmentation, |k, c| {
-            base ^ ((k as u64) << 16 | c as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
-        })
-        .into_iter()
-        .filter_map(|copy| {
-            copy.map_err(|e| tracing::warn!(shape = %name, "a perturbed copy left out: {e}")).ok()
-        })
-        .collect();
+        // The name's digest in the seed tells the shapes apart.
+        let copies: Vec<TrainingShape> = augmented_copies(name, mesh, labels, &augmentation, base, 0)
+            .into_iter()
+            .filter_map(|copy| {
+                copy.map_err(|e| tracing::warn!(shape = %name, "a perturbed copy left out: {e}")).ok()
+            })
+            .collect();
         self.copies.insert(name.to_string(), copies);
     }
 
