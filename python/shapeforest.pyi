@@ -78,12 +78,15 @@ class Forest:
         seed: int = 0,
         augment: Sequence[str] = (),
         augment_copies: int = 15,
+        local_descriptors: bool = False,
         progress: Progress = None,
     ) -> "Forest":
         """Trains on labelled meshes. ``labels=None``: the meshes share one vertex indexing and
         label = vertex index. Otherwise one integer array per mesh (``-1`` = unlabelled).
         ``augment=["partial-view"]`` (also ``"holes:N:R"``, ``"crop:R"``) adds ``augment_copies``
         seeded perturbed copies of every mesh per kind, so partial scans are learnt.
+        ``local_descriptors=True`` lets the forest split on local histograms of the surface too
+        (for partial scans; prediction then reads the mesh, as it always does here).
         ``progress=True`` reports on stderr; a callable gets ``(stage, done, total)``."""
     @staticmethod
     def load(path: Union[str, PathLike[str]]) -> "Forest":

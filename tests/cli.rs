@@ -173,3 +173,68 @@ fn train_then_match_pipelines_on_a_data_folder() {
     assert_eq!(map.lines().filter(|l| !l.starts_with('#')).count(), n);
     assert!(data.join("incoming/scan.off").is_file(), "batch matching reads inputs in place");
 }
+
+#[test]
+fn a_model_with_local_histograms_is_trained_written_as_version_4_and_matches_a_single_view() {
+    use shapeforest::mesh::{perturb, Perturbation};
+    use shapeforest::synth::{creature_family, CreatureParams};
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("local.sfm");
+    let out = bin()
+        .args([
+            "train",
+            "--synthetic",
+            "--vertices",
+            "1000",
+            "--n-synthetic",
+            "3",
+            "--trees",
+            "3",
+            "-k",
+            "30",
+        ])
+        .args(["--augment", "partial-view", "--augment-copies", "2", "--local-descriptors", "--out"])
+        .arg(&model)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("splits on local histograms"), "{err}");
+    let bytes = std::fs::read(&model).unwrap();
+    assert_eq!(u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]), 4, "format version");
+
+    // The reference is the first training shape; the scan a single view of another pose.
+    let fam = creature_family(&CreatureParams { target_vertices: 1000, ..Default::default() }, 4).unwrap();
+    let reference = dir.path().join("ref.off");
+    write_mesh(&reference, &fam.shapes[0]).unwrap();
+    let view = perturb(&fam.shapes[3], &[Perturbation::PARTIAL_VIEW], 3).unwrap();
+    let scan = dir.path().join("view.off");
+    write_mesh(&scan, &view.mesh).unwrap();
+    let out_dir = dir.path().join("out");
+    let out = bin()
+        .args(["match", "--model"])
+        .arg(&model)
+        .arg("--reference")
+        .arg(&reference)
+        .arg("--mesh")
+        .arg(&scan)
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(out_dir.join("view.map.txt")).unwrap();
+    let map: Vec<usize> =
+        text.lines().filter(|l| !l.starts_with('#')).map(|l| l.trim().parse().unwrap()).collect();
+    assert_eq!(map.len(), view.mesh.n_vertices());
+    assert!(map.iter().all(|&r| r < fam.shapes[0].n_vertices()));
+
+    // A radius outside (0, 1] is refused before anything is read.
+    let out = bin()
+        .args(["train", "--synthetic", "--local-descriptors", "--local-radius", "0", "--out"])
+        .arg(dir.path().join("x.sfm"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("radius"));
+}

@@ -424,8 +424,7 @@ fn write_small_model(data: &Path, version: u64, k: usize, n_labels: usize, file:
     let fam = family(1);
     let mesh = &fam.shapes[0];
     let spectrum = Arc::new(compute_spectrum(mesh, &SpectrumParams::new(k)).unwrap());
-    let shape =
-        TrainingShape { name: "creature0".into(), spectrum, labels: labels_identity(mesh.n_vertices()) };
+    let shape = TrainingShape::new("creature0", spectrum, labels_identity(mesh.n_vertices()));
     let set = TrainingSet::new(vec![shape], n_labels).unwrap();
     let forest = RandomForest::params().n_trees(1).max_depth(4).fit(&set).unwrap();
     forest.save(at).unwrap();
@@ -633,9 +632,7 @@ fn model_errors_say_their_cause_once_and_predict_leaves_loose_vertices_unlabelle
     let model = tmp.path().join("m.sfm");
     let n = fam.template.n_vertices();
     let spectrum = Arc::new(compute_spectrum(&fam.shapes[0], &SpectrumParams::new(100)).unwrap());
-    let set =
-        TrainingSet::new(vec![TrainingShape { name: "a".into(), spectrum, labels: labels_identity(n) }], n)
-            .unwrap();
+    let set = TrainingSet::new(vec![TrainingShape::new("a", spectrum, labels_identity(n))], n).unwrap();
     RandomForest::params().n_trees(1).max_depth(6).fit(&set).unwrap().save(&model).unwrap();
     let mut bytes = fs::read(&model).unwrap();
     let last = bytes.len() - 1;

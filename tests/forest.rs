@@ -135,16 +135,11 @@ fn params_check_messages_state_the_rule() {
 fn bad_shapes_are_rejected_and_the_rest_train() {
     let f = family(1);
     let n = f.base.n_vertices();
-    let good =
-        TrainingShape { name: "good".into(), spectrum: f.spectra[0].clone(), labels: labels_identity(n) };
-    let short = TrainingShape {
-        name: "short".into(),
-        spectrum: f.spectra[0].clone(),
-        labels: labels_identity(n - 1),
-    };
+    let good = TrainingShape::new("good", f.spectra[0].clone(), labels_identity(n));
+    let short = TrainingShape::new("short", f.spectra[0].clone(), labels_identity(n - 1));
     let mut out_of_range = labels_identity(n);
     out_of_range[7] = Some(n as u32 + 3);
-    let oor = TrainingShape { name: "oor".into(), spectrum: f.spectra[0].clone(), labels: out_of_range };
+    let oor = TrainingShape::new("oor", f.spectra[0].clone(), out_of_range);
     let (set, rejected) =
         TrainingSet::new_with_rejections(vec![short.clone(), good, oor.clone()], n).unwrap();
     assert_eq!(set.shapes().len(), 1);
@@ -161,7 +156,7 @@ fn bad_shapes_are_rejected_and_the_rest_train() {
     for l in partial.iter_mut().skip(n / 2) {
         *l = None;
     }
-    let s = TrainingShape { name: "half".into(), spectrum: f.spectra[0].clone(), labels: partial };
+    let s = TrainingShape::new("half", f.spectra[0].clone(), partial);
     let set = TrainingSet::new(vec![s], n).unwrap();
     assert_eq!(set.n_samples(), n / 2);
     let pred = RandomForest::params().n_trees(2).fit(&set).unwrap().predict(&f.spectra[0]).unwrap();
@@ -204,10 +199,10 @@ fn model_round_trip_and_bad_files() {
     let bytes = std::fs::read(&path).unwrap();
     assert!(matches!(RandomForest::from_bytes(b"OFF\n3 1 0\n"), Err(ForestError::NotAModel)));
     assert!(matches!(RandomForest::load(dir.path().join("missing")), Err(ForestError::Io { .. })));
-    let mut v4 = bytes.clone();
-    v4[8] = 4;
-    let e = RandomForest::from_bytes(&v4).unwrap_err();
-    assert!(matches!(e, ForestError::UnsupportedVersion { found: 4, oldest: 1, supported: 3 }), "{e}");
+    let mut v5 = bytes.clone();
+    v5[8] = 5;
+    let e = RandomForest::from_bytes(&v5).unwrap_err();
+    assert!(matches!(e, ForestError::UnsupportedVersion { found: 5, oldest: 1, supported: 4 }), "{e}");
     let mut flipped = bytes.clone();
     let mid = bytes.len() / 2;
     flipped[mid] ^= 0x40;
@@ -251,11 +246,9 @@ fn incremental_growth_raises_accuracy_and_old_model_keeps_serving() {
     assert_eq!(small.predict(&f.spectra[5]).unwrap(), before, "the previous forest is unchanged");
     // Incompatible growth is refused.
     let n = f.base.n_vertices();
-    let other = TrainingSet::new(
-        vec![TrainingShape { name: "x".into(), spectrum: f.spectra[0].clone(), labels: labels_identity(n) }],
-        n + 1,
-    )
-    .unwrap();
+    let other =
+        TrainingSet::new(vec![TrainingShape::new("x", f.spectra[0].clone(), labels_identity(n))], n + 1)
+            .unwrap();
     assert!(matches!(params.fit_with(Some(&small), &other), Err(ForestError::IncompatibleModel(_))));
     let _ = hit_ratio(&after2.map_labels(), &truth);
 }
@@ -284,4 +277,39 @@ fn types_are_send_sync() {
     ok::<TrainingSet>();
     ok::<WksKnn>();
     ok::<ForestError>();
+}
+
+#[test]
+fn local_histograms_must_be_carried_by_every_shape_or_none_and_an_update_keeps_them() {
+    use shapeforest::descriptor::LocalParams;
+    let f = family(3);
+    let n = f.base.n_vertices();
+    let local = LocalParams { radius: 0.15, ..Default::default() };
+    let with = |i: usize| {
+        TrainingShape::new(format!("member{i}"), f.spectra[i].clone(), labels_identity(n))
+            .with_local(&member(&f.base, i), &local)
+            .unwrap()
+    };
+    let without =
+        |i: usize| TrainingShape::new(format!("plain{i}"), f.spectra[i].clone(), labels_identity(n));
+    // A set mixing shapes with and without histograms keeps the first kind and names the others.
+    let set = TrainingSet::new(vec![with(0), without(1), with(2)], n).unwrap();
+    assert_eq!(set.shapes().len(), 2);
+    assert_eq!(set.local_params(), Some(local));
+    let (name, why) = &set.rejected()[0];
+    assert_eq!(name, "plain1");
+    assert!(why.contains("no local histograms"), "{why}");
+    // Histograms of another mesh (another vertex count) are refused by name.
+    let other = shapeforest::synth::icosphere(2, 1.0);
+    let wrong = TrainingShape::new("wrong", f.spectra[0].clone(), labels_identity(n));
+    assert!(wrong.with_local(&other, &local).is_err());
+    // An update must bring the same kind of shapes as the model was grown on.
+    let params = RandomForest::params().n_trees(2).trees_per_update(1).seed(5).check().unwrap();
+    let forest = params.fit(&set).unwrap();
+    let plain = TrainingSet::new(vec![without(1)], n).unwrap();
+    let e = params.fit_with(Some(&forest), &plain).unwrap_err();
+    assert!(e.to_string().contains("local histograms"), "{e}");
+    let grown = params.fit_with(Some(&forest), &TrainingSet::new(vec![with(1)], n).unwrap()).unwrap();
+    assert_eq!(grown.local(), Some(&local));
+    assert_eq!(grown.n_trees(), 2);
 }

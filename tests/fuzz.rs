@@ -39,8 +39,7 @@ fn fixture() -> &'static Fixture {
         let mesh = &fam.shapes[0];
         let spectrum = Arc::new(compute_spectrum(mesh, &SpectrumParams::new(20)).unwrap());
         let n = mesh.n_vertices();
-        let shape =
-            TrainingShape { name: "s".into(), spectrum: spectrum.clone(), labels: labels_identity(n) };
+        let shape = TrainingShape::new("s", spectrum.clone(), labels_identity(n));
         let set = TrainingSet::new(vec![shape], n).unwrap();
         let forest = RandomForest::params().n_trees(2).max_depth(6).fit(&set).unwrap();
         let dir = tempfile::tempdir().unwrap();

@@ -21,7 +21,7 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2,
 use pyo3::{create_exception, exceptions::PyValueError, prelude::*, types::PyDict};
 use rayon::prelude::*;
 use shapeforest::{
-    descriptor::{heat_kernel_signature, wave_kernel_signature, HksParams, WksParams},
+    descriptor::{heat_kernel_signature, wave_kernel_signature, HksParams, LocalParams, WksParams},
     eval,
     forest::{
         augmented_copies, labels_identity, reference_table, Augmentation, ModelReference, RandomForest,
@@ -464,10 +464,12 @@ impl PyForest {
     /// training fails only when none is left. `augment=["partial-view"]` (also `"holes:N:R"`,
     /// `"crop:R"`) adds `augment_copies` seeded perturbed copies of every mesh per kind, each
     /// prepared as a scan is, so the forest learns partial scans (as `shapeforest train
-    /// --augment`). `progress=True` reports spectra, copies and trees on stderr; a callable gets
+    /// --augment`). `local_descriptors=True` lets the forest split on local histograms of the
+    /// surface too (as `shapeforest train --local-descriptors`; for partial scans).
+    /// `progress=True` reports spectra, copies and trees on stderr; a callable gets
     /// `(stage, done, total)`.
     #[staticmethod]
-    #[pyo3(signature = (meshes, labels = None, *, n_trees = 15, max_depth = 25, k = 100, seed = 0, augment = Vec::new(), augment_copies = 15, progress = None))]
+    #[pyo3(signature = (meshes, labels = None, *, n_trees = 15, max_depth = 25, k = 100, seed = 0, augment = Vec::new(), augment_copies = 15, local_descriptors = false, progress = None))]
     #[allow(clippy::too_many_arguments)]
     fn train(
         py: Python<'_>,
@@ -479,8 +481,10 @@ impl PyForest {
         seed: u64,
         augment: Vec<String>,
         augment_copies: usize,
+        local_descriptors: bool,
         progress: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
+        let local = local_descriptors.then(LocalParams::default);
         if meshes.is_empty() {
             return Err(sf_err("nothing to train on: give at least one mesh"));
         }
@@ -552,6 +556,7 @@ impl PyForest {
                     fill_perimeter: Some(ScanPart::FILL_PERIMETER),
                     spectrum: &sp,
                     cache: None,
+                    local: local.as_ref(),
                 };
                 let total = meshes.len() * kinds.len() * augment_copies;
                 progress.report("copies", 0, total);
@@ -571,6 +576,14 @@ impl PyForest {
                 }
             }
             let names = meshes.iter().enumerate().map(|(i, m)| format!("{} (mesh {i})", m.name));
+            // The meshes as training shapes, with their local histograms when asked for.
+            let shape = |name: String, mesh: &CoreMesh, spectrum: Arc<CoreSpectrum>, labels: Vec<Option<u32>>| {
+                let s = TrainingShape::new(name.clone(), spectrum, labels);
+                match &local {
+                    Some(l) => s.with_local(mesh, l).map_err(|e| format!("local histograms of {name}: {e}")),
+                    None => Ok(s),
+                }
+            };
             // The model stores where its labels lie on the first mesh (the reference), as
             // `shapeforest train` does: the identity for a shared-indexing class, otherwise that
             // mesh's labels with those it lacks placed through the other meshes.
@@ -580,8 +593,9 @@ impl PyForest {
                     let n = identity.len();
                     let mut shapes: Vec<TrainingShape> = names
                         .zip(spectra)
-                        .map(|(name, spectrum)| TrainingShape { name, spectrum, labels: identity.clone() })
-                        .collect();
+                        .zip(&meshes)
+                        .map(|((name, spectrum), m)| shape(name, &m.inner, spectrum, identity.clone()))
+                        .collect::<Result<_, String>>()?;
                     shapes.extend(copies);
                     (TrainingSet::new(shapes, n), ModelReference::shared_indexing(&first.name, &first.inner))
                 }
@@ -594,8 +608,9 @@ impl PyForest {
                     let mut shapes: Vec<TrainingShape> = names
                         .zip(spectra)
                         .zip(labels.iter().cloned())
-                        .map(|((name, spectrum), labels)| TrainingShape { name, spectrum, labels })
-                        .collect();
+                        .zip(&meshes)
+                        .map(|(((name, spectrum), labels), m)| shape(name, &m.inner, spectrum, labels))
+                        .collect::<Result<_, String>>()?;
                     shapes.extend(copies);
                     (
                         TrainingSet::new(shapes, n_labels),
@@ -667,7 +682,7 @@ impl PyForest {
         }
         let s = compute(py, mesh, self.inner.k())?;
         let f = self.inner.clone();
-        let p = py.detach(|| f.predict(&s)).map_err(|e| sf_err(format!("forest prediction failed: {e}")))?;
+        let p = py.detach(|| f.predict_mesh(&mesh.inner, &s)).map_err(|e| sf_err(format!("forest prediction failed: {e}")))?;
         let n = p.n_vertices();
         let mut labels = Array2::<i64>::from_elem((n, top_k), -1);
         let mut probs = Array2::<f64>::zeros((n, top_k));
@@ -739,7 +754,7 @@ impl PyForest {
             let scan_sp = Arc::new(spectra.next().expect("two spectra")?);
             let ref_sp = Arc::new(spectra.next().expect("two spectra")?);
             progress.report("match", 1, steps);
-            let prediction = f.predict(&scan_sp).map_err(|e| format!("forest prediction failed: {e}"))?;
+            let prediction = f.predict_mesh(&s.inner, &scan_sp).map_err(|e| format!("forest prediction failed: {e}"))?;
             progress.report("match", 2, steps);
             let test = PreparedShape::new(s.inner.clone(), scan_sp, reg.heat).map_err(|e| e.to_string())?;
             let refp = PreparedShape::new(r.inner.clone(), ref_sp, reg.heat).map_err(|e| e.to_string())?;

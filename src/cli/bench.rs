@@ -369,7 +369,7 @@ fn bench_forest(k: usize) -> Result<ForestResults> {
     let mut shapes = Vec::with_capacity(n_shapes);
     for (i, mesh) in family.shapes.iter().enumerate() {
         let spectrum = Arc::new(compute_spectrum(mesh, &SpectrumParams::new(k))?);
-        shapes.push(TrainingShape { name: format!("creature-{i}"), spectrum, labels: labels_identity(n) });
+        shapes.push(TrainingShape::new(format!("creature-{i}"), spectrum, labels_identity(n)));
     }
     let spectra_s = t0.elapsed().as_secs_f64();
     eprintln!("  spectra: {spectra_s:.2} s");

@@ -370,7 +370,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
     };
 
     let t0 = Instant::now();
-    let prediction = forest.predict(&scan_spectrum).context("forest prediction failed")?;
+    let prediction = forest.predict_mesh(&part.mesh, &scan_spectrum).context("forest prediction failed")?;
     let predict_s = t0.elapsed().as_secs_f64();
     let reference = Arc::new(reference);
     // The shapes the scan is regularised onto: the relay in the nearest pose, or the reference
@@ -472,7 +472,8 @@ pub fn run(args: MatchArgs) -> Result<()> {
         (Some(target), Some(target_path)) => {
             let (target_spectrum, target_zoomout) = solve(&target, target_path)?;
             let target_spectrum = Arc::new(target_spectrum);
-            let target_prediction = forest.predict(&target_spectrum).context("forest prediction failed")?;
+            let target_prediction =
+                forest.predict_mesh(&target, &target_spectrum).context("forest prediction failed")?;
             let target = Arc::new(target);
             let mut targetp = PreparedShape::new(target.clone(), target_spectrum, reg.heat)?;
             if let Some(sp) = target_zoomout {

@@ -56,7 +56,7 @@ pub fn run(args: PredictArgs) -> Result<()> {
     let spectrum = spectra(&[&mesh], forest.k(), args.cache.as_deref(), "spectrum")?.remove(0);
     let t_spec = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
-    let prediction = forest.predict(&spectrum)?;
+    let prediction = forest.predict_mesh(&mesh, &spectrum)?;
     eprintln!(
         "{}: {} vertices; spectrum {:.2} s, prediction {:.2} s, mean support {:.1}",
         args.mesh.display(),

@@ -51,6 +51,17 @@ pub struct TrainArgs {
     /// Perturbed copies per training shape and --augment kind.
     #[arg(long, default_value_t = 15)]
     pub augment_copies: usize,
+    /// Let the forest split on local histograms of the surface too (for partial scans: single
+    /// views, large holes; README, "Local histograms"). Matching then reads the scan's mesh.
+    #[arg(long)]
+    pub local_descriptors: bool,
+    /// Support radius of the local histograms, as a fraction of √area.
+    #[arg(long, default_value_t = 0.07, value_name = "R", requires = "local_descriptors")]
+    pub local_radius: f64,
+    /// With --local-descriptors, the share of split candidates drawn from the local histograms'
+    /// bins (the rest from the parametric WKS).
+    #[arg(long, default_value_t = 1.0, value_name = "S", requires = "local_descriptors")]
+    pub local_share: f64,
     /// Leave out a shape that cannot be used (unreadable, wrong vertex count, a label map of
     /// the wrong length) with a warning, instead of failing.
     #[arg(long)]
@@ -327,7 +338,14 @@ pub fn run(args: TrainArgs) -> Result<()> {
         .max_depth(args.depth)
         .candidates_per_node(args.candidates)
         .seed(args.seed)
+        .local_share(args.local_share)
         .check()?;
+    let local = args
+        .local_descriptors
+        .then_some(shapeforest::descriptor::LocalParams { radius: args.local_radius, ..Default::default() });
+    if let Some(l) = &local {
+        l.check().context("--local-radius")?;
+    }
     let (shapes, n_labels) = gather(&args)?;
     if shapes.is_empty() {
         bail!("no usable training shape");
@@ -354,6 +372,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
             fill_perimeter: Some(shapeforest::regularizer::ScanPart::FILL_PERIMETER),
             spectrum: &sp,
             cache: cache.as_ref(),
+            local: local.as_ref(),
         };
         for (i, s) in shapes.iter().enumerate() {
             let copies = shapeforest::forest::augmented_copies(
@@ -373,8 +392,16 @@ pub fn run(args: TrainArgs) -> Result<()> {
     let mut training: Vec<TrainingShape> = shapes
         .into_iter()
         .zip(spectra)
-        .map(|(s, spectrum)| TrainingShape { name: s.name, spectrum, labels: s.labels })
-        .collect();
+        .map(|(s, spectrum)| {
+            let shape = TrainingShape::new(s.name.clone(), spectrum, s.labels);
+            match &local {
+                Some(l) => {
+                    shape.with_local(&s.mesh, l).with_context(|| format!("local histograms of {}", s.name))
+                }
+                None => Ok(shape),
+            }
+        })
+        .collect::<Result<_>>()?;
     training.extend(augmented);
     let set = TrainingSet::new(training, n_labels)?;
     for (name, why) in set.rejected() {
@@ -396,13 +423,18 @@ pub fn run(args: TrainArgs) -> Result<()> {
     bar.finish_and_clear();
     let forest = forest.with_reference(reference)?;
     eprintln!(
-        "{} trees on {} shapes ({} samples, {} labels) in {:.1} s; mean leaf support {:.2}",
+        "{} trees on {} shapes ({} samples, {} labels) in {:.1} s; mean leaf support {:.2}{}",
         forest.n_trees(),
         n_shapes,
         n_samples,
         n_labels,
         t0.elapsed().as_secs_f64(),
-        forest.mean_leaf_support()
+        forest.mean_leaf_support(),
+        forest.local().map_or(String::new(), |l| format!(
+            "; splits on local histograms (radius {}·√area, {} bins)",
+            l.radius,
+            l.dim()
+        ))
     );
     forest.save(&args.out)?;
     let size = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);

@@ -19,16 +19,22 @@
 //!   (index 0). Built for millions of evaluations: `φ_k(m)²` is precomputed per shape, row-major
 //!   per vertex, and the weights `w_k = f_e(λ_k)²` are computed once per `(shape, e)`.
 //!
+//! - [`LocalDescriptor`]: not spectral: SHOT-like histograms of the surface in a small ball
+//!   around each vertex ([`LocalParams`]), which survive holes and missing parts that change
+//!   every eigenfunction; a forest can split on them besides the parametric WKS.
+//!
 //! Zero eigenvalues (the constant eigenvector, one per connected component) are skipped by
 //! every descriptor: `log 0` is undefined and they carry no geometry. An eigenvalue is treated as
 //! zero when it is at most `1e-8 · λ_max` (see [`first_nonzero_eigenvalue`]).
 
 mod hks;
+mod local;
 mod orientation;
 mod parametric;
 mod wks;
 
 pub use hks::{heat_kernel_signature, hks_times, HksParams};
+pub use local::{LocalDescriptor, LocalParams, MAX_LOCAL_DIM, MIN_NEIGHBOURS};
 pub use orientation::{band_pass_functions, orientation_band_energies, orientation_descriptors};
 #[cfg(target_arch = "x86_64")]
 pub(crate) use parametric::dot_f32_avx;

@@ -334,7 +334,7 @@ pub fn run_pairs(
             for (k, &v) in shapes[s].truth.iter().enumerate() {
                 labels[v] = Some(k as u32);
             }
-            TrainingShape { name: shapes[s].name.clone(), spectrum: spectra[&s].clone(), labels }
+            TrainingShape::new(shapes[s].name.clone(), spectra[&s].clone(), labels)
         })
         .collect();
     let forest = forest_params.fit(&TrainingSet::new(members, n_labels)?)?;

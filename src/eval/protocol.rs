@@ -46,7 +46,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{geodesic_errors, EvalError};
 use crate::{
-    descriptor::WksParams,
+    descriptor::{LocalParams, WksParams},
     forest::{
         augmented_copies, Augmentation, Prediction, RandomForest, RandomForestParams, TrainingSet,
         TrainingShape, WksKnn,
@@ -133,6 +133,10 @@ pub struct ProtocolParams {
     /// Copies per training shape and augmentation kind (default 15: on single views of SCAPE,
     /// 4 copies reach 17.9 % within 0.05, 15 copies 26.1 %, 60 copies 29.1 %).
     pub augment_copies: usize,
+    /// Let the forest split on local histograms of the surface ([`LocalParams`]) besides the
+    /// parametric WKS: every training shape and copy carries them, and each test's are computed
+    /// on its (perturbed) mesh. Default none (WKS only).
+    pub local: Option<LocalParams>,
     /// Diagnose every test ([`TestResult::diagnosis`]): how many evaluated points are right
     /// at each stage of the regulariser, and with each of these variants of its settings
     /// (named). Default off.
@@ -201,6 +205,7 @@ impl Default for ProtocolParams {
             fill_holes: Some(ScanPart::FILL_PERIMETER),
             augment: Vec::new(),
             augment_copies: 15,
+            local: None,
             diagnose: None,
             relay: true,
             relay_votes: 1,
@@ -610,10 +615,11 @@ pub fn run_protocol(
             stage(&mut progress, "train");
             let mut members = Vec::with_capacity(key.len());
             for &s in &key {
-                members.push(TrainingShape {
-                    name: shapes[s].name.clone(),
-                    spectrum: spectrum_of(s)?,
-                    labels: labels_of(&shapes[s]),
+                let shape =
+                    TrainingShape::new(shapes[s].name.clone(), spectrum_of(s)?, labels_of(&shapes[s]));
+                members.push(match &params.local {
+                    Some(l) => shape.with_local(&shapes[s].mesh, l)?,
+                    None => shape,
                 });
             }
             let augmentation = Augmentation {
@@ -622,6 +628,7 @@ pub fn run_protocol(
                 fill_perimeter: params.fill_holes,
                 spectrum: &params.spectrum,
                 cache: cache.as_ref(),
+                local: params.local.as_ref(),
             };
             for &s in &key {
                 let copies = augmented_copies(
@@ -732,7 +739,7 @@ pub fn run_protocol(
 
         stage(&mut progress, "predict");
         let t0 = Instant::now();
-        let prediction = forest.predict(&test_prepared.spectrum)?;
+        let prediction = forest.predict_mesh(&test_prepared.mesh, &test_prepared.spectrum)?;
         timings.predict_s = t0.elapsed().as_secs_f64();
         let table = &shapes[reference].truth;
 

@@ -14,6 +14,7 @@ use rayon::prelude::*;
 
 use super::{ForestError, TrainingShape};
 use crate::{
+    descriptor::LocalParams,
     mesh::{fill_holes, largest_component, perturb, perturbations_name, Mesh, Perturbation},
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
@@ -23,7 +24,8 @@ use crate::{
 /// `fill_perimeter·√area(mesh)` closed for the spectrum (`None`: left open; a scan's are closed
 /// at `regularizer::ScanPart::FILL_PERIMETER` of the reference's), its spectrum (through
 /// `cache` when given) normalised by the area of `mesh` and restricted to the part's vertices,
-/// its vertices labelled as in `labels` (one entry per vertex of `mesh`).
+/// its vertices labelled as in `labels` (one entry per vertex of `mesh`), with the part's local
+/// histograms when `local` is given.
 #[allow(clippy::too_many_arguments)]
 pub fn augmented_shape(
     name: &str,
@@ -34,6 +36,7 @@ pub fn augmented_shape(
     fill_perimeter: Option<f64>,
     spectrum: &SpectrumParams,
     cache: Option<&SpectrumCache>,
+    local: Option<&LocalParams>,
 ) -> Result<TrainingShape, ForestError> {
     let p = perturb(mesh, perturbations, seed)?;
     let (part, kept) = match largest_component(&p.mesh) {
@@ -46,11 +49,15 @@ pub fn augmented_shape(
     let closed = fill_perimeter.map(|f| fill_holes(&part, f * area.sqrt())).filter(|(_, n)| *n > 0);
     let sp: Spectrum = spectrum_cached(closed.as_ref().map_or(&part, |(m, _)| m), spectrum, cache)?;
     let sp = sp.renormalised(area).restricted(part.n_vertices());
-    Ok(TrainingShape {
-        name: format!("{name}~{}#{seed}", perturbations_name(perturbations)),
-        spectrum: Arc::new(sp),
-        labels: kept.iter().map(|&v| labels.get(v).copied().flatten()).collect(),
-    })
+    let shape = TrainingShape::new(
+        format!("{name}~{}#{seed}", perturbations_name(perturbations)),
+        Arc::new(sp),
+        kept.iter().map(|&v| labels.get(v).copied().flatten()).collect(),
+    );
+    match local {
+        Some(l) => shape.with_local(&part, l),
+        None => Ok(shape),
+    }
 }
 
 /// What every copy of [`augmented_copies`] shares.
@@ -66,6 +73,9 @@ pub struct Augmentation<'a> {
     pub spectrum: &'a SpectrumParams,
     /// Where spectra are cached, if anywhere.
     pub cache: Option<&'a SpectrumCache>,
+    /// The local histograms' settings, when the forest splits on them (each copy gets its own,
+    /// computed on the part).
+    pub local: Option<&'a LocalParams>,
 }
 
 /// The perturbed copies of one labelled shape: `copies` of every kind ([`augmented_shape`]),
@@ -97,6 +107,7 @@ pub fn augmented_copies(
                 a.fill_perimeter,
                 a.spectrum,
                 a.cache,
+                a.local,
             )
         })
         .collect()

@@ -8,7 +8,11 @@
 //! on the reference shape). From version 3 each tree is a compact pre-order code (leaf labels
 //! in the node records, probabilities only for multi-label leaves, child and leaf indices
 //! implicit: see the `compact` module), about a quarter of version 2's size; versions 1 (no
-//! table) and 2 (full node records) are still read. Writes go to a temporary
+//! table) and 2 (full node records) are still read. Version 4 is version 3 with the settings of
+//! the local histograms ([`LocalParams`]) at the end of the header and of the forest, for a
+//! forest that splits on them (feature indices past the energy grid); a forest that does not is
+//! still written as version 3, so older builds keep reading it, and an older build refuses a
+//! version-4 file by its version instead of misreading its splits. Writes go to a temporary
 //! file in the same directory, are flushed and synced, then renamed over the target, so a reader
 //! never sees a half-written model. Every failure to read is a typed [`ForestError`].
 
@@ -20,12 +24,13 @@ use super::compact::CompactTree;
 use super::params::RandomForestParams;
 use super::reference::ModelReference;
 use super::{ForestError, RandomForest};
-use crate::descriptor::EnergyGrid;
+use crate::descriptor::{EnergyGrid, LocalParams};
 
 /// Magic bytes at the start of a model file.
 pub const MODEL_MAGIC: [u8; 8] = *b"SFOREST\0";
-/// Current model file format version.
-pub const MODEL_FORMAT_VERSION: u32 = 3;
+/// Current model file format version (written for a forest with local histograms; one without
+/// is written as version 3, which is the same layout without them).
+pub const MODEL_FORMAT_VERSION: u32 = 4;
 /// The oldest format version this build still reads (version 1 has no reference table).
 pub const MODEL_FORMAT_OLDEST: u32 = 1;
 /// The format's own head in the frame: the version (`u32`).
@@ -45,6 +50,10 @@ pub struct ModelHeader {
     pub grid: EnergyGrid,
     /// Number of trees.
     pub n_trees: usize,
+    /// Settings of the local histograms the trees also split on (none: WKS only; absent
+    /// before format version 4).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub local: Option<LocalParams>,
 }
 
 /// The payload of versions 1 and 2: the forest with its trees' full node records.
@@ -70,6 +79,8 @@ struct ForestV3Out<'a> {
     trees: Vec<CompactTree>,
     next_tree_index: u64,
     reference: &'a Option<ModelReference>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    local: Option<LocalParams>,
 }
 
 /// The payload of version 3 (read).
@@ -88,6 +99,8 @@ struct ForestV3 {
     trees: Vec<CompactTree>,
     next_tree_index: u64,
     reference: Option<ModelReference>,
+    #[serde(default)]
+    local: Option<LocalParams>,
 }
 
 impl ForestV3 {
@@ -107,6 +120,7 @@ impl ForestV3 {
             trees,
             next_tree_index: self.next_tree_index,
             reference: self.reference,
+            local: self.local,
         })
     }
 }
@@ -131,24 +145,33 @@ impl RandomForest {
             k: self.k,
             grid: self.grid,
             n_trees: self.trees.len(),
+            local: self.local,
         }
     }
 
-    /// Encodes the model as bytes (the file format described in the module docs, the current
-    /// version [`MODEL_FORMAT_VERSION`]).
+    /// Encodes the model as bytes (the file format described in the module docs: version
+    /// [`MODEL_FORMAT_VERSION`] for a forest with local histograms, 3 for one without).
     pub fn to_bytes(&self) -> Result<Vec<u8>, ForestError> {
-        self.to_bytes_version(MODEL_FORMAT_VERSION)
+        self.to_bytes_version(if self.local.is_some() { MODEL_FORMAT_VERSION } else { 3 })
     }
 
-    /// Encodes the model in format `version` (2 or 3): version 2 for a reader that predates
-    /// version 3, and to measure what the compact trees save.
+    /// Encodes the model in format `version` (2, 3 or 4): version 2 for a reader that predates
+    /// version 3, and to measure what the compact trees save. Versions 2 and 3 cannot hold a
+    /// forest with local histograms (an error says so).
     pub fn to_bytes_version(&self, version: u32) -> Result<Vec<u8>, ForestError> {
         use rayon::prelude::*;
         let encode_error = |e: String| ForestError::CorruptModel(format!("cannot encode: {e}"));
+        if self.local.is_some() && version < 4 {
+            return Err(ForestError::UnsupportedVersion {
+                found: version,
+                oldest: 4,
+                supported: MODEL_FORMAT_VERSION,
+            });
+        }
         let payload = match version {
             2 => rmp_serde::to_vec(&Payload { header: self.header(), forest: self.clone() })
                 .map_err(|e| encode_error(e.to_string()))?,
-            3 => {
+            3 | 4 => {
                 let trees = self
                     .trees
                     .par_iter()
@@ -163,6 +186,7 @@ impl RandomForest {
                     trees,
                     next_tree_index: self.next_tree_index,
                     reference: &self.reference,
+                    local: self.local,
                 };
                 rmp_serde::to_vec(&PayloadV3Out { header: self.header(), forest })
                     .map_err(|e| encode_error(e.to_string()))?
@@ -215,6 +239,11 @@ impl RandomForest {
         let corrupt = |e: rmp_serde::decode::Error| ForestError::CorruptModel(e.to_string());
         let (header, forest) = if version >= 3 {
             let p: PayloadV3 = rmp_serde::from_slice(payload).map_err(corrupt)?;
+            if version == 3 && (p.header.local.is_some() || p.forest.local.is_some()) {
+                return Err(ForestError::CorruptModel(
+                    "a version-3 file with local-histogram settings".into(),
+                ));
+            }
             (p.header, p.forest.into_forest()?)
         } else {
             let p: Payload = rmp_serde::from_slice(payload).map_err(corrupt)?;
@@ -280,11 +309,7 @@ mod tests {
             .map(|s| std::sync::Arc::new(crate::spectral::compute_spectrum(s, &p).unwrap()))
             .collect();
         let n = fam.template.n_vertices();
-        let shape = |i: usize| TrainingShape {
-            name: format!("s{i}"),
-            spectrum: spectra[i].clone(),
-            labels: labels_identity(n),
-        };
+        let shape = |i: usize| TrainingShape::new(format!("s{i}"), spectra[i].clone(), labels_identity(n));
         let set = TrainingSet::new(vec![shape(0)], n).unwrap();
         let forest = RandomForest::params().n_trees(4).seed(3).fit(&set).unwrap();
         let v2 = forest.to_bytes_version(2).unwrap();
@@ -311,20 +336,78 @@ mod tests {
     }
 
     #[test]
+    fn a_forest_with_local_histograms_is_version_4_splits_on_them_and_round_trips() {
+        let fam =
+            creature_family(&CreatureParams { target_vertices: 1200, ..Default::default() }, 2).unwrap();
+        let p = crate::spectral::SpectrumParams::new(20);
+        let local = crate::descriptor::LocalParams { radius: 0.1, ..Default::default() };
+        let n = fam.template.n_vertices();
+        let shapes: Vec<TrainingShape> = fam
+            .shapes
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                let sp = std::sync::Arc::new(crate::spectral::compute_spectrum(m, &p).unwrap());
+                TrainingShape::new(format!("s{i}"), sp, labels_identity(n)).with_local(m, &local).unwrap()
+            })
+            .collect();
+        let set = TrainingSet::new(vec![shapes[0].clone()], n).unwrap();
+        let forest = RandomForest::params().n_trees(3).seed(2).local_share(0.5).fit(&set).unwrap();
+        assert_eq!(forest.local(), Some(&local));
+        let levels = forest.grid.levels;
+        let local_nodes = forest
+            .trees
+            .iter()
+            .flat_map(|t| &t.nodes)
+            .filter(|nd| nd.k_bar > 0 && nd.energy >= levels)
+            .count();
+        let wks_nodes = forest
+            .trees
+            .iter()
+            .flat_map(|t| &t.nodes)
+            .filter(|nd| nd.k_bar > 0 && nd.energy < levels)
+            .count();
+        assert!(local_nodes > 0 && wks_nodes > 0, "{local_nodes} local and {wks_nodes} WKS splits");
+        let bytes = forest.to_bytes().unwrap();
+        assert_eq!(u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]), 4);
+        assert!(matches!(forest.to_bytes_version(3), Err(ForestError::UnsupportedVersion { found: 3, .. })));
+        let read = RandomForest::from_bytes(&bytes).unwrap();
+        assert_eq!(read, forest);
+        assert_eq!(read.header().local, Some(local));
+        // Prediction needs the mesh, and the model read back predicts the same.
+        let (mesh, sp) = (&fam.shapes[1], &shapes[1].spectrum);
+        let e = forest.predict(sp).unwrap_err();
+        assert!(e.to_string().contains("mesh"), "{e}");
+        let (a, b) = (forest.predict_mesh(mesh, sp).unwrap(), read.predict_mesh(mesh, sp).unwrap());
+        assert_eq!(a.map_labels(), b.map_labels());
+        // A descriptor without the histograms is refused by such a forest.
+        let wks_only = RandomForest::params()
+            .n_trees(1)
+            .fit(&TrainingSet::new(vec![TrainingShape::new("w", sp.clone(), labels_identity(n))], n).unwrap())
+            .unwrap();
+        let plain = wks_only.descriptor(sp).unwrap();
+        assert!(forest.predict_descriptor(&plain).is_err());
+        // A WKS-only forest is still written as version 3, which older builds read.
+        let v = wks_only.to_bytes().unwrap();
+        assert_eq!(u32::from_le_bytes([v[8], v[9], v[10], v[11]]), 3);
+        // A version-4 file whose local nodes point past the histogram's bins is refused.
+        let mut bad = forest.clone();
+        let node = bad.trees[0].nodes.iter_mut().find(|nd| nd.k_bar > 0).unwrap();
+        node.energy = levels + local.dim() as u32;
+        node.k_bar = 1;
+        let e = RandomForest::from_bytes(&bad.to_bytes().unwrap()).unwrap_err();
+        assert!(e.to_string().contains("malformed"), "{e}");
+    }
+
+    #[test]
     fn version_1_files_are_still_read() {
         let fam = creature_family(&CreatureParams { target_vertices: 800, ..Default::default() }, 1).unwrap();
         let sp = crate::spectral::compute_spectrum(&fam.shapes[0], &crate::spectral::SpectrumParams::new(20))
             .unwrap();
         let n = fam.template.n_vertices();
-        let set = TrainingSet::new(
-            vec![TrainingShape {
-                name: "a".into(),
-                spectrum: std::sync::Arc::new(sp),
-                labels: labels_identity(n),
-            }],
-            n,
-        )
-        .unwrap();
+        let set =
+            TrainingSet::new(vec![TrainingShape::new("a", std::sync::Arc::new(sp), labels_identity(n))], n)
+                .unwrap();
         let forest = RandomForest::params().n_trees(2).fit(&set).unwrap();
         let v1 = PayloadV1 {
             header: forest.header(),

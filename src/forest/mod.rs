@@ -13,6 +13,14 @@
 //! shapes, `σ = 7 (e_max − e_min)/100` by default, and `k̄` uniformly from `[k_min, K]`. The range
 //! and `K` are stored in the model so prediction uses the same descriptor.
 //!
+//! **Local histograms (for partial scans).** When every training shape carries
+//! [`crate::descriptor::LocalDescriptor`]s ([`TrainingShape::with_local`]), a share
+//! `local_share` of the split candidates are bins `b` of the histogram instead: `ψ(m) =
+//! [h_b(m) > τ]` (default share 1: local bins only). The histograms see only a small ball around
+//! each point, so they survive holes and missing halves that change every eigenfunction; the
+//! forest stores their settings ([`RandomForest::local`], model format version 4) and predicts
+//! from a shape's mesh and spectrum ([`RandomForest::predict_mesh`]).
+//!
 //! **Splits.** `ψ(m) = [p(m; e, k̄) > τ]` (true: right child). Each node draws
 //! `candidates_per_node` pairs `(e, k̄)`; for each, every threshold between consecutive sorted
 //! values is scored by the information gain `H(S) − |S_L|/|S| H(S_L) − |S_R|/|S| H(S_R)` with the
@@ -46,7 +54,7 @@
 //! let mesh = icosphere(1, 1.0);
 //! let spectrum = Arc::new(dense_spectrum(&mesh, 12).unwrap());
 //! let n = mesh.n_vertices();
-//! let shape = TrainingShape { name: "a".into(), spectrum: spectrum.clone(), labels: labels_identity(n) };
+//! let shape = TrainingShape::new("a", spectrum.clone(), labels_identity(n));
 //! let set = TrainingSet::new(vec![shape], n).unwrap();
 //! let forest = RandomForest::params().n_trees(3).seed(1).fit(&set).unwrap();
 //! let pred = forest.predict(&spectrum).unwrap();

@@ -9,16 +9,21 @@ use super::reference::ModelReference;
 use super::training::TrainingSet;
 use super::tree::{grow_tree, TrainData, Tree};
 use super::ForestError;
-use crate::descriptor::{first_nonzero_eigenvalue, EnergyGrid, ParametricWks, WksParams};
+use crate::descriptor::{
+    first_nonzero_eigenvalue, EnergyGrid, LocalDescriptor, LocalParams, ParametricWks, WksParams,
+};
+use crate::mesh::Mesh;
 use crate::spectral::Spectrum;
 
 /// The per-vertex descriptor a forest splits on ([`RandomForest::descriptor`]): the squared
-/// eigenvector rows of the parametric WKS and the band-pass weights of the forest's energy grid.
+/// eigenvector rows of the parametric WKS, the band-pass weights of the forest's energy grid
+/// and, for a forest that splits on them too, the local histograms.
 pub struct ForestDescriptor {
     wks: ParametricWks,
     table: Vec<f32>,
     k: usize,
     grid: EnergyGrid,
+    local: Option<LocalDescriptor>,
 }
 
 impl ForestDescriptor {
@@ -27,13 +32,15 @@ impl ForestDescriptor {
         self.wks.n_vertices()
     }
 
-    /// Bytes held (the `n × K` rows and the weight table).
+    /// Bytes held (the `n × K` rows, the weight table and any local histograms).
     pub fn heap_bytes(&self) -> usize {
         4 * (self.wks.n_vertices() * self.k + self.table.len())
+            + self.local.as_ref().map_or(0, |l| l.heap_bytes())
     }
 }
 
-/// A random forest mapping vertices to labels from the parametric WKS of their shape.
+/// A random forest mapping vertices to labels from the parametric WKS of their shape (and,
+/// when trained on shapes that carry them, from local histograms: see [`Self::local`]).
 ///
 /// Immutable once fitted: an incremental update ([`RandomForestValidParams::fit_with`]) returns a
 /// new forest, so a server can keep answering with the old one (behind an `Arc`) and swap.
@@ -49,6 +56,10 @@ pub struct RandomForest {
     /// class, where label = reference vertex, and in files of format version 1).
     #[serde(default)]
     pub(crate) reference: Option<ModelReference>,
+    /// The settings of the local histograms the trees also split on (absent for a WKS-only
+    /// forest, and in files of format versions 1–3).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(crate) local: Option<LocalParams>,
 }
 
 impl RandomForest {
@@ -90,6 +101,13 @@ impl RandomForest {
         self.grid
     }
 
+    /// The settings of the local histograms ([`LocalDescriptor`]) the trees split on besides
+    /// the parametric WKS, if the training shapes carried them. Such a forest predicts from a
+    /// shape's mesh and spectrum ([`Self::predict_mesh`]), not from the spectrum alone.
+    pub fn local(&self) -> Option<&LocalParams> {
+        self.local.as_ref()
+    }
+
     /// Number of trees.
     pub fn n_trees(&self) -> usize {
         self.trees.len()
@@ -110,19 +128,47 @@ impl RandomForest {
     /// The forest posterior of every vertex of `spectrum` (a shape scaled to unit area, with at
     /// least [`Self::k`] eigenpairs): the average of the leaf distributions reached in each tree,
     /// as a sparse left-stochastic matrix (labels × vertices). Parallel over vertices.
+    /// A forest that splits on local histograms ([`Self::local`]) needs the mesh too: see
+    /// [`Self::predict_mesh`]; here it fails with [`ForestError::IncompatibleModel`].
     pub fn predict(&self, spectrum: &Spectrum) -> Result<Prediction, ForestError> {
         self.predict_descriptor(&self.descriptor(spectrum)?)
+    }
+
+    /// [`Self::predict`] for a shape given by its mesh and its spectrum (same vertices): works
+    /// for every forest, computing the local histograms when the forest splits on them.
+    pub fn predict_mesh(&self, mesh: &Mesh, spectrum: &Spectrum) -> Result<Prediction, ForestError> {
+        self.predict_descriptor(&self.descriptor_mesh(Some(mesh), spectrum)?)
     }
 
     /// The per-vertex descriptor the trees split on, for this forest's energy grid and `K`:
     /// the first half of [`Self::predict`], for pipelines that run it as its own stage.
     pub fn descriptor(&self, spectrum: &Spectrum) -> Result<ForestDescriptor, ForestError> {
+        self.descriptor_mesh(None, spectrum)
+    }
+
+    /// [`Self::descriptor`] with the shape's mesh, from which the local histograms are computed
+    /// when the forest splits on them (then the mesh is required; otherwise it is not read).
+    pub fn descriptor_mesh(
+        &self,
+        mesh: Option<&Mesh>,
+        spectrum: &Spectrum,
+    ) -> Result<ForestDescriptor, ForestError> {
         if spectrum.k() < self.k {
             return Err(ForestError::SpectrumTooShort { needed: self.k, found: spectrum.k() });
         }
+        let local =
+            match (&self.local, mesh) {
+                (None, _) => None,
+                (Some(p), Some(m)) => Some(LocalDescriptor::new(m, spectrum, p)?),
+                (Some(_), None) => return Err(ForestError::IncompatibleModel(
+                    "this model also splits on local histograms of the surface: it needs the shape's mesh, \
+                     not only its spectrum"
+                        .into(),
+                )),
+            };
         let wks = ParametricWks::new(spectrum, self.k)?;
         let table = wks.weight_table(&self.grid);
-        Ok(ForestDescriptor { wks, table, k: self.k, grid: self.grid })
+        Ok(ForestDescriptor { wks, table, k: self.k, grid: self.grid, local })
     }
 
     /// The forest posterior from a descriptor made by [`Self::descriptor`] (of this forest or of
@@ -134,7 +180,15 @@ impl RandomForest {
                 descriptor.k, self.k
             )));
         }
+        if descriptor.local.as_ref().map(|l| l.params()) != self.local.as_ref() {
+            return Err(ForestError::IncompatibleModel(
+                "descriptor made with other local-histogram settings than the model's".into(),
+            ));
+        }
         let (pw, table) = (&descriptor.wks, &descriptor.table);
+        let local = descriptor.local.as_ref();
+        let local_row = |v: usize| local.map_or(&[][..], |l| l.row(v));
+        let levels = self.grid.levels;
         let n = pw.n_vertices();
         let inv_trees = 1.0 / self.trees.len() as f64;
         // Vertices are processed in chunks, tree by tree within a chunk, so the upper levels of
@@ -147,7 +201,8 @@ impl RandomForest {
                 let (a, b) = (ci * CHUNK, ((ci + 1) * CHUNK).min(n));
                 let mut leaves = vec![0u32; (b - a) * n_trees];
                 for (ti, t) in self.trees.iter().enumerate() {
-                    t.leaves_into(table, self.k, |v| pw.row(v), a..b, &mut leaves[ti..], n_trees);
+                    let rows = |v: usize| (pw.row(v), local_row(v));
+                    t.leaves_into(table, self.k, levels, rows, a..b, &mut leaves[ti..], n_trees);
                 }
                 let mut lens = Vec::with_capacity(b - a);
                 let mut labels = Vec::new();
@@ -190,7 +245,8 @@ impl RandomForest {
 
     /// Checks the internal consistency of a forest (used after loading a model file): child
     /// indices after their parent and in range, leaf indices and labels in range, `k̄ ≤ K`,
-    /// energies on the grid.
+    /// energies on the grid, local bins (feature indices past the grid) only in a forest with
+    /// local histograms and within their bins.
     pub(crate) fn validate(&self) -> Result<(), String> {
         if self.trees.is_empty() {
             return Err("the forest has no trees".into());
@@ -209,6 +265,10 @@ impl RandomForest {
         if let Some(r) = &self.reference {
             r.validate(self.n_labels)?;
         }
+        if let Some(l) = &self.local {
+            l.check().map_err(|e| e.to_string())?;
+        }
+        let features = self.grid.levels as usize + self.local.map_or(0, |l| l.dim());
         for (ti, t) in self.trees.iter().enumerate() {
             let nl = t.n_leaves();
             if t.nodes.is_empty() || t.leaf_offsets.first() != Some(&0) {
@@ -231,7 +291,8 @@ impl RandomForest {
                         return Err(format!("tree {ti} node {i} points to a missing leaf"));
                     }
                 } else if nd.k_bar as usize > self.k
-                    || nd.energy >= self.grid.levels
+                    || nd.energy as usize >= features
+                    || (nd.energy >= self.grid.levels && nd.k_bar != 1)
                     || nd.left as usize <= i
                     || nd.right as usize <= i
                     || nd.left as usize >= t.nodes.len()
@@ -316,6 +377,17 @@ impl RandomForestValidParams {
                 let grid = energy_grid(set, k, p)?;
                 (k, grid, p.n_trees, 0u64, Vec::new())
             }
+            Some(prev) if prev.local != set.local_params() => {
+                return Err(ForestError::IncompatibleModel(match (&prev.local, set.local_params()) {
+                    (Some(_), None) => {
+                        "the model splits on local histograms but the new shapes carry none".into()
+                    }
+                    (None, Some(_)) => {
+                        "the new shapes carry local histograms but the model does not split on them".into()
+                    }
+                    _ => "the new shapes' local histograms have other settings than the model's".into(),
+                }));
+            }
             Some(prev) => {
                 if prev.n_labels != set.n_labels() {
                     return Err(ForestError::IncompatibleModel(format!(
@@ -342,8 +414,27 @@ impl RandomForestValidParams {
                 reason: format!("must be at most the number of eigenpairs K = {k}, got {}", p.k_min),
             });
         }
+        let local_dim = set.local_params().map_or(0, |l| l.dim());
+        if u64::from(grid.levels) + local_dim as u64 > u64::from(u32::MAX) {
+            return Err(ForestError::InvalidParameter {
+                name: "energy_levels",
+                reason: format!(
+                    "{} levels and {local_dim} local bins do not fit in 32-bit feature indices",
+                    grid.levels
+                ),
+            });
+        }
         let data = build_train_data(set, k, grid)?;
-        Ok(Plan { k, grid, n_new, first_index, trees, data, n_labels: set.n_labels() })
+        Ok(Plan {
+            k,
+            grid,
+            n_new,
+            first_index,
+            trees,
+            data,
+            n_labels: set.n_labels(),
+            local: set.local_params(),
+        })
     }
 
     /// Grows the planned trees and assembles the forest.
@@ -354,7 +445,7 @@ impl RandomForestValidParams {
         on_tree: &(dyn Fn(usize) + Sync),
     ) -> RandomForest {
         let p = &self.0;
-        let Plan { k, grid, n_new, first_index, mut trees, data, n_labels } = plan;
+        let Plan { k, grid, n_new, first_index, mut trees, data, n_labels, local } = plan;
         let span = tracing::info_span!("forest_fit", trees = n_new, samples = data.sample_label.len());
         let _g = span.enter();
         let new_trees: Vec<Tree> = (0..n_new as u64)
@@ -379,6 +470,7 @@ impl RandomForestValidParams {
             trees,
             next_tree_index: first_index + n_new as u64,
             reference: previous.and_then(|p| p.reference.clone()),
+            local,
         }
     }
 }
@@ -392,6 +484,7 @@ struct Plan {
     trees: Vec<Tree>,
     data: TrainData,
     n_labels: usize,
+    local: Option<LocalParams>,
 }
 
 fn energy_grid(set: &TrainingSet, k: usize, p: &RandomForestParams) -> Result<EnergyGrid, ForestError> {
@@ -411,11 +504,13 @@ fn energy_grid(set: &TrainingSet, k: usize, p: &RandomForestParams) -> Result<En
 fn build_train_data(set: &TrainingSet, k: usize, grid: EnergyGrid) -> Result<TrainData, ForestError> {
     let mut shapes = Vec::with_capacity(set.shapes().len());
     let mut tables = Vec::with_capacity(set.shapes().len());
+    let mut local = Vec::new();
     let (mut sample_shape, mut sample_vertex, mut sample_label) = (Vec::new(), Vec::new(), Vec::new());
     for (si, s) in set.shapes().iter().enumerate() {
         let pw = ParametricWks::new(&s.spectrum, k)?;
         tables.push(pw.weight_table(&grid));
         shapes.push(pw);
+        local.extend(s.local.clone());
         for (v, l) in s.labels.iter().enumerate() {
             if let Some(l) = l {
                 sample_shape.push(si as u16);
@@ -437,6 +532,8 @@ fn build_train_data(set: &TrainingSet, k: usize, grid: EnergyGrid) -> Result<Tra
         tables,
         k,
         levels: grid.levels,
+        local_dim: set.local_params().map_or(0, |l| l.dim()),
+        local,
         sample_shape,
         sample_vertex,
         sample_label,

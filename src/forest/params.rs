@@ -32,6 +32,13 @@ pub struct RandomForestParams {
     pub(crate) trees_per_update: usize,
     pub(crate) parallel_node_size: usize,
     pub(crate) seed: u64,
+    /// Absent in models written before it existed: their default.
+    #[serde(default = "default_local_share")]
+    pub(crate) local_share: f64,
+}
+
+fn default_local_share() -> f64 {
+    1.0
 }
 
 /// Hyper-parameters that passed [`RandomForestParams::check`].
@@ -55,6 +62,7 @@ impl Default for RandomForestParams {
             trees_per_update: 5,
             parallel_node_size: 20_000,
             seed: 0,
+            local_share: default_local_share(),
         }
     }
 }
@@ -119,6 +127,11 @@ impl RandomForestParams {
     setter!(
         /// Seed of all random choices: the same seed and data give the same forest.
         seed: u64);
+    setter!(
+        /// When the training shapes carry local histograms, the share of split candidates drawn
+        /// from their bins, the rest from the parametric WKS (default 1: local bins only; in
+        /// `[0, 1]`). Without histograms every candidate is a WKS one.
+        local_share: f64);
 
     /// Validates every hyper-parameter; the error names the parameter and states the rule.
     pub fn check(self) -> Result<RandomForestValidParams, ForestError> {
@@ -167,6 +180,9 @@ impl RandomForestParams {
         }
         if self.trees_per_update < 1 {
             return bad("trees_per_update", format!("must be at least 1, got {}", self.trees_per_update));
+        }
+        if !(0.0..=1.0).contains(&self.local_share) {
+            return bad("local_share", format!("must be between 0 and 1, got {}", self.local_share));
         }
         if self.parallel_node_size < 1 {
             return bad("parallel_node_size", format!("must be at least 1, got {}", self.parallel_node_size));

@@ -4,7 +4,7 @@ use std::io::BufRead;
 use std::sync::Arc;
 
 use super::ForestError;
-use crate::descriptor::first_nonzero_eigenvalue;
+use crate::descriptor::{first_nonzero_eigenvalue, LocalDescriptor, LocalParams};
 use crate::spectral::Spectrum;
 
 /// One reference shape: its spectrum and, per vertex, the label it maps to (`None` = unlabelled,
@@ -17,6 +17,24 @@ pub struct TrainingShape {
     pub spectrum: Arc<Spectrum>,
     /// Label of each vertex in the common label set `0..n_labels`, or `None`.
     pub labels: Vec<Option<u32>>,
+    /// The shape's local histograms ([`LocalDescriptor`], same vertex order), when the forest
+    /// is to split on them too; every shape of a set carries them with the same settings, or
+    /// none does.
+    pub local: Option<Arc<LocalDescriptor>>,
+}
+
+impl TrainingShape {
+    /// A shape without local histograms.
+    pub fn new(name: impl Into<String>, spectrum: Arc<Spectrum>, labels: Vec<Option<u32>>) -> Self {
+        Self { name: name.into(), spectrum, labels, local: None }
+    }
+
+    /// The same shape carrying the local histograms of `mesh` (its mesh: same vertices as the
+    /// spectrum), for a forest that splits on them.
+    pub fn with_local(mut self, mesh: &crate::mesh::Mesh, params: &LocalParams) -> Result<Self, ForestError> {
+        self.local = Some(Arc::new(LocalDescriptor::new(mesh, &self.spectrum, params)?));
+        Ok(self)
+    }
 }
 
 /// A shape that was left out of a [`TrainingSet`], and why.
@@ -37,6 +55,7 @@ pub struct TrainingSet {
     shapes: Vec<TrainingShape>,
     n_labels: usize,
     k: usize,
+    local: Option<LocalParams>,
     rejected: Vec<(String, String)>,
 }
 
@@ -45,7 +64,9 @@ impl TrainingSet {
     ///
     /// A shape is rejected (with a [`ForestError::BadShape`] naming it) when its label vector
     /// length differs from its vertex count, a label is `≥ n_labels`, its spectrum is malformed,
-    /// it has fewer than 2 nonzero eigenvalues, or no vertex is labelled. The common number of
+    /// it has fewer than 2 nonzero eigenvalues, no vertex is labelled, its local histograms do
+    /// not match its vertex count, or it carries local histograms (or their settings) where the
+    /// first accepted shape does not (or others). The common number of
     /// eigenpairs `K` is the smallest over the accepted shapes. Fails only when no shape is left
     /// (the error lists every rejection) or `n_labels` is 0.
     pub fn new(shapes: Vec<TrainingShape>, n_labels: usize) -> Result<Self, ForestError> {
@@ -67,7 +88,7 @@ impl TrainingSet {
         let labels = labels_identity(n);
         let shapes = shapes
             .into_iter()
-            .map(|(name, spectrum)| TrainingShape { name, spectrum, labels: labels.clone() })
+            .map(|(name, spectrum)| TrainingShape::new(name, spectrum, labels.clone()))
             .collect();
         Self::new(shapes, n)
     }
@@ -83,10 +104,11 @@ impl TrainingSet {
                 reason: format!("must be between 1 and 2^32 - 1, got {n_labels}"),
             });
         }
-        let mut ok = Vec::new();
+        let mut ok: Vec<TrainingShape> = Vec::new();
         let mut rejected = Vec::new();
         for s in shapes {
-            match check_shape(&s, n_labels) {
+            let first = ok.first().map(|f| f.local.as_ref().map(|l| *l.params()));
+            match check_shape(&s, n_labels, first) {
                 Ok(()) => ok.push(s),
                 Err(reason) => {
                     tracing::warn!(shape = %s.name, %reason, "training shape rejected");
@@ -108,8 +130,9 @@ impl TrainingSet {
             });
         }
         let k = ok.iter().map(|s| s.spectrum.k()).min().unwrap_or(0);
+        let local = ok[0].local.as_ref().map(|l| *l.params());
         let rej = rejected.iter().map(|r| (r.name.clone(), r.error.to_string())).collect();
-        Ok((Self { shapes: ok, n_labels, k, rejected: rej }, rejected))
+        Ok((Self { shapes: ok, n_labels, k, local, rejected: rej }, rejected))
     }
 
     /// The accepted shapes.
@@ -127,6 +150,11 @@ impl TrainingSet {
         self.k
     }
 
+    /// The settings of the local histograms every shape carries, if they do.
+    pub fn local_params(&self) -> Option<LocalParams> {
+        self.local
+    }
+
     /// Names and reasons of the rejected shapes.
     pub fn rejected(&self) -> &[(String, String)] {
         &self.rejected
@@ -138,8 +166,29 @@ impl TrainingSet {
     }
 }
 
-fn check_shape(s: &TrainingShape, n_labels: usize) -> Result<(), String> {
+/// Checks one shape; `first` is the local settings of the first accepted shape (`None` when
+/// none is accepted yet).
+fn check_shape(s: &TrainingShape, n_labels: usize, first: Option<Option<LocalParams>>) -> Result<(), String> {
     let sp = &s.spectrum;
+    if let Some(l) = &s.local {
+        if l.n_vertices() != sp.n_vertices {
+            return Err(format!(
+                "local histograms of {} vertices but the spectrum has {}",
+                l.n_vertices(),
+                sp.n_vertices
+            ));
+        }
+    }
+    let own = s.local.as_ref().map(|l| *l.params());
+    if let Some(first) = first {
+        if own != first {
+            return Err(match (first, own) {
+                (None, _) => "it carries local histograms and the other shapes do not".into(),
+                (_, None) => "it carries no local histograms and the other shapes do".into(),
+                _ => "its local histograms have other settings than the other shapes'".into(),
+            });
+        }
+    }
     if s.labels.len() != sp.n_vertices {
         return Err(format!(
             "label map has {} entries but the spectrum has {} vertices",

@@ -16,11 +16,16 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::params::RandomForestParams;
-use crate::descriptor::{dot_f32, ParametricWks};
+use std::sync::Arc;
 
-/// A node: internal when `k_bar > 0` (go right when `p(m; e, k̄) > threshold`), a leaf otherwise
-/// (`left` is then the leaf index).
+use super::params::RandomForestParams;
+use crate::descriptor::{dot_f32, LocalDescriptor, ParametricWks};
+
+/// A node: internal when `k_bar > 0`, a leaf otherwise (`left` is then the leaf index). An
+/// internal node's `energy` is a feature index: below the energy grid's `levels`, the grid
+/// level `e` of a WKS split (go right when `p(m; e, k̄) > threshold`); from `levels` on, bin
+/// `energy − levels` of the local histogram (go right when that bin's value `> threshold`;
+/// `k̄ = 1` then, unused).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub(crate) struct Node {
     pub(crate) energy: u32,
@@ -43,14 +48,17 @@ pub(crate) struct Tree {
 }
 
 impl Tree {
-    /// The leaf reached by each row `rows(v)` (a vertex's `φ²` row, with the shape's weight
-    /// table `table`, `levels × k`) for `v` in `vertices`, into `out` (stride `stride`): with AVX where the CPU has it, the same leaves (the split values are the same
-    /// bits, see [`crate::descriptor::dot_f32`]).
+    /// The leaf reached by each vertex `v` in `vertices`, from `rows(v)` (its `φ²` row, read
+    /// with the shape's weight table `table`, `levels × k`, and its local histogram, empty when
+    /// the forest has none), into `out` (stride `stride`): with AVX where the CPU has it, the
+    /// same leaves (the split values are the same bits, see [`crate::descriptor::dot_f32`]).
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn leaves_into<'r>(
         &self,
         table: &[f32],
         k: usize,
-        rows: impl Fn(usize) -> &'r [f32],
+        levels: u32,
+        rows: impl Fn(usize) -> (&'r [f32], &'r [f32]),
         vertices: std::ops::Range<usize>,
         out: &mut [u32],
         stride: usize,
@@ -61,7 +69,8 @@ impl Tree {
             tree: &Tree,
             table: &[f32],
             k: usize,
-            rows: &impl Fn(usize) -> &'r [f32],
+            levels: u32,
+            rows: &impl Fn(usize) -> (&'r [f32], &'r [f32]),
             vertices: std::ops::Range<usize>,
             out: &mut [u32],
             stride: usize,
@@ -69,43 +78,50 @@ impl Tree {
         ) {
             let first = vertices.start;
             for v in vertices {
-                let row = rows(v);
+                let (row, local) = rows(v);
                 let mut n = 0usize;
                 let leaf = loop {
                     let node = &tree.nodes[n];
                     if node.k_bar == 0 {
                         break node.left;
                     }
-                    let kb = node.k_bar as usize;
-                    let w = &table[node.energy as usize * k..node.energy as usize * k + kb];
-                    n = if dot(w, &row[..kb]) > node.threshold { node.right } else { node.left } as usize;
+                    let value = if node.energy < levels {
+                        let kb = node.k_bar as usize;
+                        let w = &table[node.energy as usize * k..node.energy as usize * k + kb];
+                        dot(w, &row[..kb])
+                    } else {
+                        local[(node.energy - levels) as usize]
+                    };
+                    n = if value > node.threshold { node.right } else { node.left } as usize;
                 };
                 out[(v - first) * stride] = leaf;
             }
         }
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = "avx")]
+        #[allow(clippy::too_many_arguments)]
         unsafe fn with_avx<'r>(
             tree: &Tree,
             table: &[f32],
             k: usize,
-            rows: &impl Fn(usize) -> &'r [f32],
+            levels: u32,
+            rows: &impl Fn(usize) -> (&'r [f32], &'r [f32]),
             vertices: std::ops::Range<usize>,
             out: &mut [u32],
             stride: usize,
         ) {
             // SAFETY: AVX is enabled in this function.
-            walk(tree, table, k, rows, vertices, out, stride, |a, b| unsafe {
+            walk(tree, table, k, levels, rows, vertices, out, stride, |a, b| unsafe {
                 crate::descriptor::dot_f32_avx(a, b)
             });
         }
         #[cfg(target_arch = "x86_64")]
         if simd_dots() {
             // SAFETY: the CPU supports AVX (checked by `simd_dots`).
-            unsafe { with_avx(self, table, k, &rows, vertices, out, stride) };
+            unsafe { with_avx(self, table, k, levels, &rows, vertices, out, stride) };
             return;
         }
-        walk(self, table, k, &rows, vertices, out, stride, dot_f32);
+        walk(self, table, k, levels, &rows, vertices, out, stride, dot_f32);
     }
 
     /// Sparse distribution of leaf `i`.
@@ -127,6 +143,10 @@ pub(crate) struct TrainData {
     pub(crate) tables: Vec<Vec<f32>>,
     pub(crate) k: usize,
     pub(crate) levels: u32,
+    /// Bins of the local histograms (0 when the shapes carry none).
+    pub(crate) local_dim: usize,
+    /// Per shape, its local histograms (empty when the shapes carry none).
+    pub(crate) local: Vec<Arc<LocalDescriptor>>,
     pub(crate) sample_shape: Vec<u16>,
     pub(crate) sample_vertex: Vec<u32>,
     pub(crate) sample_label: Vec<u32>,
@@ -288,7 +308,8 @@ fn simd_dots() -> bool {
     }
 }
 
-/// The values `p(m; e, k̄)` of sample `s` for every candidate `(e, k̄)`, into `out` (the same
+/// The values of sample `s` for every candidate `(e, k̄)` (`p(m; e, k̄)`, or a local bin for a
+/// feature index past the grid), into `out` (the same
 /// bits with `avx` as without: see [`crate::descriptor::dot_f32`]).
 #[inline]
 fn sample_features(data: &TrainData, cands: &[(u32, u16)], s: usize, out: &mut [f32], avx: bool) {
@@ -302,12 +323,18 @@ fn sample_features(data: &TrainData, cands: &[(u32, u16)], s: usize, out: &mut [
     ) {
         let k = data.k;
         let sh = data.sample_shape[s] as usize;
-        let row = data.shapes[sh].row(data.sample_vertex[s] as usize);
+        let v = data.sample_vertex[s] as usize;
+        let row = data.shapes[sh].row(v);
+        let local = data.local.get(sh).map_or(&[][..], |l| l.row(v));
         let table = &data.tables[sh];
         for (f, &(e, kb)) in out.iter_mut().zip(cands) {
-            let kb = kb as usize;
-            let w = &table[e as usize * k..e as usize * k + kb];
-            *f = dot(w, &row[..kb]);
+            *f = if e < data.levels {
+                let kb = kb as usize;
+                let w = &table[e as usize * k..e as usize * k + kb];
+                dot(w, &row[..kb])
+            } else {
+                local[(e - data.levels) as usize]
+            };
         }
     }
     #[cfg(target_arch = "x86_64")]
@@ -380,10 +407,15 @@ pub(crate) fn grow_tree(data: &TrainData, p: &RandomForestParams, index: u64) ->
             && h > p.min_entropy + 1e-12
         {
             cands.clear();
+            // With local histograms, a share `local_share` of the candidates are local bins
+            // (feature index past the grid); without them, the draws of a WKS-only forest.
             for _ in 0..n_cand {
-                let e = rng.random_range(0..data.levels);
-                let kb = rng.random_range(k_min..=k) as u16;
-                cands.push((e, kb));
+                let local = data.local_dim > 0 && rng.random_bool(p.local_share);
+                cands.push(if local {
+                    (data.levels + rng.random_range(0..data.local_dim as u32), 1)
+                } else {
+                    (rng.random_range(0..data.levels), rng.random_range(k_min..=k) as u16)
+                });
             }
             feats.clear();
             feats.resize(m * n_cand, 0.0);

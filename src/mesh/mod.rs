@@ -255,6 +255,22 @@ pub fn triangle_area(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> f64 {
     0.5 * norm(cross(sub(b, a), sub(c, a)))
 }
 
+/// Area-weighted vertex normals (not normalised: the sum of the incident faces' cross
+/// products, each twice the face's area).
+pub(crate) fn vertex_normals(mesh: &Mesh) -> Vec<[f64; 3]> {
+    let mut normals = vec![[0.0; 3]; mesh.n_vertices()];
+    for f in &mesh.faces {
+        let p = mesh.vertices[f[0]];
+        let n = cross(sub(mesh.vertices[f[1]], p), sub(mesh.vertices[f[2]], p));
+        for &v in f {
+            for d in 0..3 {
+                normals[v][d] += n[d];
+            }
+        }
+    }
+    normals
+}
+
 #[inline]
 pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]

@@ -11,7 +11,7 @@
 //! vertices carry no vote.
 
 use super::Error;
-use crate::mesh::{cross, dot, norm, sub, Mesh};
+use crate::mesh::{cross, dot, norm, sub, vertex_normals, Mesh};
 
 /// Orientation of a vertex map, see the module documentation.
 #[derive(Clone, Debug, PartialEq)]
@@ -23,21 +23,6 @@ pub struct MapOrientation {
     pub per_vertex: Vec<f64>,
     /// Fraction of the test area whose faces have a non-degenerate image.
     pub voting_area: f64,
-}
-
-/// Area-weighted vertex normals (not normalised: the sum of the incident faces' cross
-/// products).
-pub(crate) fn vertex_normals(mesh: &Mesh) -> Vec<[f64; 3]> {
-    let mut normals = vec![[0.0; 3]; mesh.n_vertices()];
-    for f in &mesh.faces {
-        let n = face_cross(mesh, f[0], f[1], f[2]);
-        for &v in f {
-            for d in 0..3 {
-                normals[v][d] += n[d];
-            }
-        }
-    }
-    normals
 }
 
 fn face_cross(mesh: &Mesh, a: usize, b: usize, c: usize) -> [f64; 3] {

@@ -1270,8 +1270,8 @@ impl Codec for DescribedCodec {
         Box::pin(async move {
             let shape = get_spectral(nats, &b.spectral).await?;
             let model = self.models.version(b.model_version).await?;
-            let (m, spectrum) = (model.clone(), shape.spectrum.clone());
-            let descriptor = off_thread(move || m.forest.descriptor(&spectrum))
+            let (m, spectrum, mesh) = (model.clone(), shape.spectrum.clone(), shape.shape.mesh.clone());
+            let descriptor = off_thread(move || m.forest.descriptor_mesh(Some(&mesh), &spectrum))
                 .await?
                 .map_err(|e| format!("the descriptor of model v{}: {e}", model.version))?;
             Ok(DescribedShape { shape, model, descriptor: Arc::new(descriptor) })

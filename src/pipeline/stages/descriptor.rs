@@ -74,7 +74,7 @@ impl Stage for DescriptorStage {
         })?;
         let descriptor = model
             .forest
-            .descriptor(&shape.spectrum)
+            .descriptor_mesh(Some(&shape.shape.mesh), &shape.spectrum)
             .map_err(|e| Failure::bad_input("descriptor", format!("{}: {e}", job.display_source())))?;
         Ok(DescribedShape { shape, model, descriptor: Arc::new(descriptor) })
     }

@@ -17,6 +17,7 @@ use serde::Deserialize;
 use sha2::{Digest, Sha256};
 
 use crate::{
+    descriptor::LocalParams,
     forest::{
         augmented_copies, reference_table, Augmentation, ModelReference, RandomForest,
         RandomForestValidParams, TrainingSet, TrainingShape,
@@ -125,6 +126,12 @@ pub struct TrainerConfig {
     /// Perturbed copies per training shape and `augment` kind. Default 15.
     #[serde(default = "default_augment_copies")]
     pub augment_copies: usize,
+    /// A first model also splits on local histograms of the surface (as `train
+    /// --local-descriptors`; for partial scans). Later updates follow the current model:
+    /// a model that splits on them keeps doing so, one that does not never starts. Default
+    /// false.
+    #[serde(default)]
+    pub local_descriptors: bool,
 }
 
 fn default_augment_copies() -> usize {
@@ -170,6 +177,7 @@ impl Default for TrainerConfig {
             quiet_ms: default_quiet(),
             augment: Vec::new(),
             augment_copies: default_augment_copies(),
+            local_descriptors: false,
         }
     }
 }
@@ -403,12 +411,28 @@ impl TrainerSink {
             let (mesh, labels, spectrum) =
                 load_stored(&self.data.training(), name, &params, self.cache.as_ref(), &self.limits)?;
             self.make_copies(name, &mesh, &labels, k);
-            self.known.insert(
-                name.clone(),
-                TrainingShape { name: name.clone(), spectrum: Arc::new(spectrum), labels },
-            );
+            let shape =
+                self.with_local(TrainingShape::new(name.clone(), Arc::new(spectrum), labels), &mesh)?;
+            self.known.insert(name.clone(), shape);
         }
         Ok(())
+    }
+
+    /// The local histograms' settings of the next model: the current model's, or for a first
+    /// model the default ones if the configuration asks for them.
+    fn local_params(&self) -> Option<LocalParams> {
+        match self.live.current() {
+            Some(m) => m.forest.local().copied(),
+            None => self.config.local_descriptors.then(LocalParams::default),
+        }
+    }
+
+    /// `shape` with the local histograms of `mesh` when the next model splits on them.
+    fn with_local(&self, shape: TrainingShape, mesh: &Mesh) -> Result<TrainingShape, Error> {
+        match self.local_params() {
+            Some(l) => shape.with_local(mesh, &l).map_err(|e| Error::Training(e.to_string())),
+            None => Ok(shape),
+        }
     }
 
     /// The perturbed copies of a training shape (the `augment` kinds), made once per shape and
@@ -420,6 +444,7 @@ impl TrainerSink {
             return;
         }
         let params = SpectrumParams::new(k);
+        let local = self.local_params();
         let digest = Sha256::digest(name.as_bytes());
         let base = self.config.seed ^ u64::from_le_bytes(digest[..8].try_into().unwrap_or_default());
         let augmentation = Augmentation {
@@ -428,6 +453,7 @@ impl TrainerSink {
             fill_perimeter: Some(ScanPart::FILL_PERIMETER),
             spectrum: &params,
             cache: self.cache.as_ref(),
+            local: local.as_ref(),
         };
         // The name's digest in the seed tells the shapes apart.
         let copies: Vec<TrainingShape> = augmented_copies(name, mesh, labels, &augmentation, base, 0)
@@ -562,12 +588,17 @@ impl TrainerSink {
         let mut accepted = Vec::new();
         let mut mirrors: HashMap<u64, Vec<Option<u32>>> = HashMap::new();
         for (job, shape) in fresh {
-            let ts = TrainingShape {
-                name: job.name.clone(),
-                spectrum: shape.spectrum.clone(),
-                labels: shape.shape.labels.as_deref().cloned().unwrap_or_default(),
+            let ts = TrainingShape::new(
+                job.name.clone(),
+                shape.spectrum.clone(),
+                shape.shape.labels.as_deref().cloned().unwrap_or_default(),
+            );
+            let (ts, local) = match self.with_local(ts.clone(), &shape.shape.mesh) {
+                Ok(with) => (with, Ok(())),
+                Err(e) => (ts, Err(e.to_string())),
             };
             let check = match current.as_ref() {
+                _ if local.is_err() => local,
                 Some(m) if shape.spectrum.k() < m.forest.k() => Err(format!(
                     "its spectrum has {} eigenpairs, the model needs {}",
                     shape.spectrum.k(),
