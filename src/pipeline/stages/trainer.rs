@@ -545,6 +545,15 @@ impl TrainerSink {
         }
         let t0 = Instant::now();
         let current = self.live.current();
+        if let Some(m) =
+            current.as_ref().filter(|m| self.config.local_descriptors && m.forest.local().is_none())
+        {
+            tracing::warn!(
+                "local_descriptors = true does not apply: model v{} was grown without local histograms and \
+                 updates keep its descriptors (fresh = true grows a new model that splits on them)",
+                m.version
+            );
+        }
         let pending = std::mem::take(&mut self.pending);
         // A shape under the name of a stored one: an identical re-delivery is consumed, a
         // different shape is rejected (never swapped in).
