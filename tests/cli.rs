@@ -6,6 +6,10 @@ use shapeforest::{mesh::write_mesh, synth::icosphere};
 
 use common::bin;
 
+/// `train` on three small synthetic creatures, three trees, 30 eigenpairs.
+const SMALL_SYNTHETIC_TRAINING: [&str; 10] =
+    ["train", "--synthetic", "--vertices", "1000", "--n-synthetic", "3", "--trees", "3", "-k", "30"];
+
 #[test]
 fn info_summarises_a_mesh_and_names_a_bad_file() {
     let dir = tempfile::tempdir().unwrap();
@@ -28,23 +32,7 @@ fn info_summarises_a_mesh_and_names_a_bad_file() {
 fn train_then_predict_labels_every_vertex() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("m.sfm");
-    let out = bin()
-        .args([
-            "train",
-            "--synthetic",
-            "--vertices",
-            "1000",
-            "--n-synthetic",
-            "3",
-            "--trees",
-            "3",
-            "-k",
-            "30",
-        ])
-        .arg("--out")
-        .arg(&model)
-        .output()
-        .unwrap();
+    let out = bin().args(SMALL_SYNTHETIC_TRAINING).arg("--out").arg(&model).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(model.exists());
 
@@ -181,18 +169,7 @@ fn a_model_with_local_histograms_is_trained_written_as_version_4_and_matches_a_s
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("local.sfm");
     let out = bin()
-        .args([
-            "train",
-            "--synthetic",
-            "--vertices",
-            "1000",
-            "--n-synthetic",
-            "3",
-            "--trees",
-            "3",
-            "-k",
-            "30",
-        ])
+        .args(SMALL_SYNTHETIC_TRAINING)
         .args(["--augment", "partial-view", "--augment-copies", "2", "--local-descriptors", "--out"])
         .arg(&model)
         .output()

@@ -5,7 +5,7 @@ mod common;
 
 use std::{path::Path, thread, time::Duration};
 
-use shapeforest::mesh::write_mesh;
+use shapeforest::mesh::{write_mesh, Mesh};
 
 use common::daemon::{
     drop_mesh, family, files_in, identity_labels, manifests, newest_training_count, result_dirs, wait_until,
@@ -211,7 +211,7 @@ fn vts_labelled_shapes_with_their_own_vertex_order_train_a_model() {
 
 #[test]
 fn a_scan_with_holes_and_a_detached_piece_is_matched_on_its_part() {
-    use shapeforest::mesh::{perturb, Mesh, Perturbation};
+    use shapeforest::mesh::{perturb, Perturbation};
     let fam = family(8);
     let holed = perturb(&fam.shapes[7], &[Perturbation::Holes { count: 5, radius: 0.03 }], 1).unwrap();
     // A scanner's stray fragment: a small blob far from the body, in the same file.
@@ -309,6 +309,19 @@ fn a_sym_vts_in_labeled_gives_the_daemons_model_its_reference_symmetry() {
     d.stop();
 }
 
+/// Fraction of a perturbed scan's vertices mapped within 0.1 (Euclidean, on the reference) of
+/// their true point: `kept[v]` is scan vertex `v`'s vertex on the unperturbed shape, which
+/// shares the reference's indexing.
+fn near_truth(reference: &Mesh, kept: &[usize], map: &[usize]) -> f64 {
+    let close = (0..map.len())
+        .filter(|&v| {
+            let (a, b) = (reference.vertices[kept[v]], reference.vertices[map[v]]);
+            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt() < 0.1
+        })
+        .count();
+    close as f64 / map.len() as f64
+}
+
 /// `augment` in the trainer's settings: the daemon's model learns single views from seeded
 /// single-view copies of every training shape, and matches a single-view scan better than the
 /// model that saw complete shapes only.
@@ -339,16 +352,10 @@ fn a_daemon_trainer_with_augment_learns_single_views_from_copies() {
         wait_until(&mut d, "a result", || result_dirs(&data).contains(&"view".to_string()));
         let map = read_map(&data.join("matched/view"), "view");
         assert_eq!(map.len(), view.mesh.n_vertices());
-        // Near the truth on the reference (the family shares one indexing).
-        let close = (0..map.len())
-            .filter(|&v| {
-                let (a, b) = (reference.vertices[view.kept[v]], reference.vertices[map[v]]);
-                ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt() < 0.1
-            })
-            .count();
+        let close = near_truth(reference, &view.kept, &map);
         let manifest = manifests(&data)[0].to_string();
         assert!(!manifest.contains('~'), "the manifest names training shapes, not copies: {manifest}");
-        (close as f64 / map.len() as f64, d.stop())
+        (close, d.stop())
     };
     let (plain, plain_log) = run(false);
     let (learnt, log) = run(true);
@@ -389,13 +396,7 @@ fn a_daemon_trainer_with_local_descriptors_matches_a_single_view() {
     wait_until(&mut d, "a result", || result_dirs(&data).contains(&"view".to_string()));
     let map = read_map(&data.join("matched/view"), "view");
     assert_eq!(map.len(), view.mesh.n_vertices());
-    let close = (0..map.len())
-        .filter(|&v| {
-            let (a, b) = (reference.vertices[view.kept[v]], reference.vertices[map[v]]);
-            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt() < 0.1
-        })
-        .count() as f64
-        / map.len() as f64;
+    let close = near_truth(reference, &view.kept, &map);
     println!("single view matched within 0.1 with local histograms: {close:.3}");
     d.stop();
     // Measured: 0.737 (with the same copies and WKS splits, the test above: 0.499).

@@ -577,7 +577,10 @@ impl PyForest {
             }
             let names = meshes.iter().enumerate().map(|(i, m)| format!("{} (mesh {i})", m.name));
             // The meshes as training shapes, with their local histograms when asked for.
-            let shape = |name: String, mesh: &CoreMesh, spectrum: Arc<CoreSpectrum>, labels: Vec<Option<u32>>| {
+            let shape = |name: String,
+                         mesh: &CoreMesh,
+                         spectrum: Arc<CoreSpectrum>,
+                         labels: Vec<Option<u32>>| {
                 let s = TrainingShape::new(name.clone(), spectrum, labels);
                 match &local {
                     Some(l) => s.with_local(mesh, l).map_err(|e| format!("local histograms of {name}: {e}")),
@@ -682,7 +685,9 @@ impl PyForest {
         }
         let s = compute(py, mesh, self.inner.k())?;
         let f = self.inner.clone();
-        let p = py.detach(|| f.predict_mesh(&mesh.inner, &s)).map_err(|e| sf_err(format!("forest prediction failed: {e}")))?;
+        let p = py
+            .detach(|| f.predict_mesh(&mesh.inner, &s))
+            .map_err(|e| sf_err(format!("forest prediction failed: {e}")))?;
         let n = p.n_vertices();
         let mut labels = Array2::<i64>::from_elem((n, top_k), -1);
         let mut probs = Array2::<f64>::zeros((n, top_k));
@@ -754,7 +759,8 @@ impl PyForest {
             let scan_sp = Arc::new(spectra.next().expect("two spectra")?);
             let ref_sp = Arc::new(spectra.next().expect("two spectra")?);
             progress.report("match", 1, steps);
-            let prediction = f.predict_mesh(&s.inner, &scan_sp).map_err(|e| format!("forest prediction failed: {e}"))?;
+            let prediction =
+                f.predict_mesh(&s.inner, &scan_sp).map_err(|e| format!("forest prediction failed: {e}"))?;
             progress.report("match", 2, steps);
             let test = PreparedShape::new(s.inner.clone(), scan_sp, reg.heat).map_err(|e| e.to_string())?;
             let refp = PreparedShape::new(r.inner.clone(), ref_sp, reg.heat).map_err(|e| e.to_string())?;

@@ -14,6 +14,35 @@ use shapeforest::{
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
+/// The local-histogram flags, shared by `train` and `eval` (README, "Local histograms").
+#[derive(Debug, clap::Args)]
+pub struct LocalFlags {
+    /// Let the forest split on local histograms of the surface (SHOT-like, in a ball of
+    /// --local-radius·√area): for partial scans (single views, large holes). Matching then
+    /// reads the scan's mesh.
+    #[arg(long)]
+    pub local_descriptors: bool,
+    /// Support radius of the local histograms, as a fraction of √area.
+    #[arg(long, default_value_t = 0.07, value_name = "R", requires = "local_descriptors")]
+    pub local_radius: f64,
+    /// With --local-descriptors, the share of split candidates drawn from the local histograms'
+    /// bins (the rest from the parametric WKS).
+    #[arg(long, default_value_t = 1.0, value_name = "S", requires = "local_descriptors")]
+    pub local_share: f64,
+}
+
+impl LocalFlags {
+    /// The histograms' settings when asked for, checked.
+    pub fn params(&self) -> Result<Option<shapeforest::descriptor::LocalParams>> {
+        if !self.local_descriptors {
+            return Ok(None);
+        }
+        let p = shapeforest::descriptor::LocalParams { radius: self.local_radius, ..Default::default() };
+        p.check().context("--local-radius")?;
+        Ok(Some(p))
+    }
+}
+
 /// Mesh file extensions the readers understand (optionally followed by `.gz`).
 const MESH_EXTENSIONS: [&str; 5] = ["off", "obj", "ply", "vert", "tri"];
 

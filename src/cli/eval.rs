@@ -156,18 +156,8 @@ pub struct EvalArgs {
     /// Perturbed copies per training shape and --augment kind.
     #[arg(long, default_value_t = 15)]
     pub augment_copies: usize,
-    /// Let the forest split on local histograms of the surface too (SHOT-like, in a ball of
-    /// --local-radius·√area): for partial scans (single views, large holes); README, "Local
-    /// histograms".
-    #[arg(long)]
-    pub local_descriptors: bool,
-    /// Support radius of the local histograms, as a fraction of √area.
-    #[arg(long, default_value_t = 0.07, value_name = "R", requires = "local_descriptors")]
-    pub local_radius: f64,
-    /// With --local-descriptors, the share of split candidates drawn from the local histograms'
-    /// bins (the rest from the parametric WKS).
-    #[arg(long, default_value_t = 1.0, value_name = "S", requires = "local_descriptors")]
-    pub local_share: f64,
+    #[command(flatten)]
+    pub local: super::common::LocalFlags,
     /// Also measure the regularised map refined by ZoomOut (the `forest+reg+zo` row). With
     /// --pairs / --protocol, ZoomOut is on by default (maps onto the reference and pair maps).
     #[arg(long, conflicts_with = "no_zoomout")]
@@ -374,16 +364,6 @@ impl EvalArgs {
             list.push(Perturbation::PointCloud { fraction });
         }
         list
-    }
-
-    /// The local histograms' settings (`--local-descriptors`), checked.
-    pub(super) fn local_params(&self) -> Result<Option<shapeforest::descriptor::LocalParams>> {
-        if !self.local_descriptors {
-            return Ok(None);
-        }
-        let p = shapeforest::descriptor::LocalParams { radius: self.local_radius, ..Default::default() };
-        p.check().context("--local-radius")?;
-        Ok(Some(p))
     }
 }
 
@@ -808,7 +788,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             .n_trees(args.trees)
             .seed(args.seed)
             .candidates_per_node(args.candidates)
-            .local_share(args.local_share),
+            .local_share(args.local.local_share),
         spectrum: SpectrumParams::new(args.k),
         cache_dir: (!args.no_cache).then(|| args.cache.clone()),
         perturbations: args.perturbations(),
@@ -818,7 +798,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         fill_holes: (args.fill_perimeter > 0.0).then_some(args.fill_perimeter),
         augment: args.augment.iter().map(|&p| vec![p]).collect(),
         augment_copies: args.augment_copies,
-        local: args.local_params()?,
+        local: args.local.params()?,
         regularizer: args.regularizer_params(false),
         diagnose: args.diagnose.then(|| diagnosis_variants(&args.regularizer_params(false))),
         relay: !args.no_relay,

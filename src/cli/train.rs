@@ -51,17 +51,8 @@ pub struct TrainArgs {
     /// Perturbed copies per training shape and --augment kind.
     #[arg(long, default_value_t = 15)]
     pub augment_copies: usize,
-    /// Let the forest split on local histograms of the surface too (for partial scans: single
-    /// views, large holes; README, "Local histograms"). Matching then reads the scan's mesh.
-    #[arg(long)]
-    pub local_descriptors: bool,
-    /// Support radius of the local histograms, as a fraction of √area.
-    #[arg(long, default_value_t = 0.07, value_name = "R", requires = "local_descriptors")]
-    pub local_radius: f64,
-    /// With --local-descriptors, the share of split candidates drawn from the local histograms'
-    /// bins (the rest from the parametric WKS).
-    #[arg(long, default_value_t = 1.0, value_name = "S", requires = "local_descriptors")]
-    pub local_share: f64,
+    #[command(flatten)]
+    pub local: super::common::LocalFlags,
     /// Leave out a shape that cannot be used (unreadable, wrong vertex count, a label map of
     /// the wrong length) with a warning, instead of failing.
     #[arg(long)]
@@ -338,14 +329,9 @@ pub fn run(args: TrainArgs) -> Result<()> {
         .max_depth(args.depth)
         .candidates_per_node(args.candidates)
         .seed(args.seed)
-        .local_share(args.local_share)
+        .local_share(args.local.local_share)
         .check()?;
-    let local = args
-        .local_descriptors
-        .then_some(shapeforest::descriptor::LocalParams { radius: args.local_radius, ..Default::default() });
-    if let Some(l) = &local {
-        l.check().context("--local-radius")?;
-    }
+    let local = args.local.params()?;
     let (shapes, n_labels) = gather(&args)?;
     if shapes.is_empty() {
         bail!("no usable training shape");
