@@ -399,6 +399,74 @@ mod tests {
         assert!(e.to_string().contains("malformed"), "{e}");
     }
 
+    /// The hyper-parameters as builds before format version 4 decode them (no `local_share`).
+    #[derive(Deserialize)]
+    #[allow(dead_code)]
+    struct ParamsV3 {
+        n_trees: usize,
+        max_depth: usize,
+        min_samples_split: usize,
+        min_samples_leaf: usize,
+        candidates_per_node: usize,
+        min_entropy: f64,
+        bagging_fraction: f64,
+        k_min: usize,
+        energy_levels: u32,
+        wks_n_energies: usize,
+        wks_sigma_factor: f64,
+        trees_per_update: usize,
+        parallel_node_size: usize,
+        seed: u64,
+    }
+
+    #[derive(Deserialize)]
+    #[allow(dead_code)]
+    struct HeaderV3 {
+        params: ParamsV3,
+        n_labels: usize,
+        k: usize,
+        grid: EnergyGrid,
+        n_trees: usize,
+    }
+
+    #[derive(Deserialize)]
+    #[allow(dead_code)]
+    struct OlderForest {
+        params: ParamsV3,
+        n_labels: usize,
+        k: usize,
+        grid: EnergyGrid,
+        trees: Vec<CompactTree>,
+        next_tree_index: u64,
+        reference: Option<ModelReference>,
+    }
+
+    #[derive(Deserialize)]
+    #[allow(dead_code)]
+    struct OlderPayload {
+        header: HeaderV3,
+        forest: OlderForest,
+    }
+
+    #[test]
+    fn a_forest_without_local_histograms_is_the_file_older_builds_read() {
+        let fam = creature_family(&CreatureParams { target_vertices: 800, ..Default::default() }, 1).unwrap();
+        let sp = crate::spectral::compute_spectrum(&fam.shapes[0], &crate::spectral::SpectrumParams::new(20))
+            .unwrap();
+        let n = fam.template.n_vertices();
+        let set =
+            TrainingSet::new(vec![TrainingShape::new("a", std::sync::Arc::new(sp), labels_identity(n))], n)
+                .unwrap();
+        // A share set without histograms has no meaning and is not stored.
+        let forest = RandomForest::params().n_trees(2).local_share(0.4).fit(&set).unwrap();
+        let bytes = forest.to_bytes().unwrap();
+        assert_eq!(u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]), 3);
+        let frame = crate::fsutil::unframe(&bytes, HEAD_LEN).unwrap();
+        let old: Result<OlderPayload, _> = rmp_serde::from_slice(frame.payload);
+        assert!(old.is_ok(), "an older build's decoder: {:?}", old.err());
+        assert_eq!(RandomForest::from_bytes(&bytes).unwrap(), forest);
+    }
+
     #[test]
     fn version_1_files_are_still_read() {
         let fam = creature_family(&CreatureParams { target_vertices: 800, ..Default::default() }, 1).unwrap();

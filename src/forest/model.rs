@@ -462,8 +462,14 @@ impl RandomForestValidParams {
             let drop = trees.len() - p.n_trees;
             trees.drain(..drop);
         }
+        // Without local histograms their share means nothing: the default is stored, so the
+        // file is the one older builds read.
+        let params = match local {
+            Some(_) => p.clone(),
+            None => RandomForestParams { local_share: super::params::default_local_share(), ..p.clone() },
+        };
         RandomForest {
-            params: p.clone(),
+            params,
             n_labels,
             k,
             grid,

@@ -32,13 +32,19 @@ pub struct RandomForestParams {
     pub(crate) trees_per_update: usize,
     pub(crate) parallel_node_size: usize,
     pub(crate) seed: u64,
-    /// Absent in models written before it existed: their default.
-    #[serde(default = "default_local_share")]
+    /// Absent in models written before it existed (their default), and not written at the
+    /// default (a forest without local histograms stores the default): a WKS-only forest's file
+    /// is then the one older builds read.
+    #[serde(default = "default_local_share", skip_serializing_if = "is_default_local_share")]
     pub(crate) local_share: f64,
 }
 
-fn default_local_share() -> f64 {
+pub(crate) fn default_local_share() -> f64 {
     1.0
+}
+
+fn is_default_local_share(share: &f64) -> bool {
+    share.to_bits() == default_local_share().to_bits()
 }
 
 /// Hyper-parameters that passed [`RandomForestParams::check`].
