@@ -287,7 +287,7 @@ fn local_histograms_must_be_carried_by_every_shape_or_none_and_an_update_keeps_t
     let local = LocalParams { radius: 0.15, ..Default::default() };
     let with = |i: usize| {
         TrainingShape::new(format!("member{i}"), f.spectra[i].clone(), labels_identity(n))
-            .with_local(&member(&f.base, i), &local)
+            .with_local(&member(&f.base, i), Some(&local))
             .unwrap()
     };
     let without =
@@ -302,7 +302,7 @@ fn local_histograms_must_be_carried_by_every_shape_or_none_and_an_update_keeps_t
     // Histograms of another mesh (another vertex count) are refused by name.
     let other = shapeforest::synth::icosphere(2, 1.0);
     let wrong = TrainingShape::new("wrong", f.spectra[0].clone(), labels_identity(n));
-    assert!(wrong.with_local(&other, &local).is_err());
+    assert!(wrong.with_local(&other, Some(&local)).is_err());
     // An update must bring the same kind of shapes as the model was grown on.
     let params = RandomForest::params().n_trees(2).trees_per_update(1).seed(5).check().unwrap();
     let forest = params.fit(&set).unwrap();

@@ -577,16 +577,12 @@ impl PyForest {
             }
             let names = meshes.iter().enumerate().map(|(i, m)| format!("{} (mesh {i})", m.name));
             // The meshes as training shapes, with their local histograms when asked for.
-            let shape = |name: String,
-                         mesh: &CoreMesh,
-                         spectrum: Arc<CoreSpectrum>,
-                         labels: Vec<Option<u32>>| {
-                let s = TrainingShape::new(name.clone(), spectrum, labels);
-                match &local {
-                    Some(l) => s.with_local(mesh, l).map_err(|e| format!("local histograms of {name}: {e}")),
-                    None => Ok(s),
-                }
-            };
+            let shape =
+                |name: String, mesh: &CoreMesh, spectrum: Arc<CoreSpectrum>, labels: Vec<Option<u32>>| {
+                    TrainingShape::new(name.clone(), spectrum, labels)
+                        .with_local(mesh, local.as_ref())
+                        .map_err(|e| format!("local histograms of {name}: {e}"))
+                };
             // The model stores where its labels lie on the first mesh (the reference), as
             // `shapeforest train` does: the identity for a shared-indexing class, otherwise that
             // mesh's labels with those it lacks placed through the other meshes.

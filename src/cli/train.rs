@@ -379,13 +379,9 @@ pub fn run(args: TrainArgs) -> Result<()> {
         .into_iter()
         .zip(spectra)
         .map(|(s, spectrum)| {
-            let shape = TrainingShape::new(s.name.clone(), spectrum, s.labels);
-            match &local {
-                Some(l) => {
-                    shape.with_local(&s.mesh, l).with_context(|| format!("local histograms of {}", s.name))
-                }
-                None => Ok(shape),
-            }
+            TrainingShape::new(s.name.clone(), spectrum, s.labels)
+                .with_local(&s.mesh, local.as_ref())
+                .with_context(|| format!("local histograms of {}", s.name))
         })
         .collect::<Result<_>>()?;
     training.extend(augmented);

@@ -617,10 +617,7 @@ pub fn run_protocol(
             for &s in &key {
                 let shape =
                     TrainingShape::new(shapes[s].name.clone(), spectrum_of(s)?, labels_of(&shapes[s]));
-                members.push(match &params.local {
-                    Some(l) => shape.with_local(&shapes[s].mesh, l)?,
-                    None => shape,
-                });
+                members.push(shape.with_local(&shapes[s].mesh, params.local.as_ref())?);
             }
             let augmentation = Augmentation {
                 kinds: &params.augment,

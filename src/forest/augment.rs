@@ -54,10 +54,7 @@ pub fn augmented_shape(
         Arc::new(sp),
         kept.iter().map(|&v| labels.get(v).copied().flatten()).collect(),
     );
-    match local {
-        Some(l) => shape.with_local(&part, l),
-        None => Ok(shape),
-    }
+    shape.with_local(&part, local)
 }
 
 /// What every copy of [`augmented_copies`] shares.

@@ -348,7 +348,9 @@ mod tests {
             .enumerate()
             .map(|(i, m)| {
                 let sp = std::sync::Arc::new(crate::spectral::compute_spectrum(m, &p).unwrap());
-                TrainingShape::new(format!("s{i}"), sp, labels_identity(n)).with_local(m, &local).unwrap()
+                TrainingShape::new(format!("s{i}"), sp, labels_identity(n))
+                    .with_local(m, Some(&local))
+                    .unwrap()
             })
             .collect();
         let set = TrainingSet::new(vec![shapes[0].clone()], n).unwrap();

@@ -30,9 +30,16 @@ impl TrainingShape {
     }
 
     /// The same shape carrying the local histograms of `mesh` (its mesh: same vertices as the
-    /// spectrum), for a forest that splits on them.
-    pub fn with_local(mut self, mesh: &crate::mesh::Mesh, params: &LocalParams) -> Result<Self, ForestError> {
-        self.local = Some(Arc::new(LocalDescriptor::new(mesh, &self.spectrum, params)?));
+    /// spectrum) with settings `params`, for a forest that splits on them; unchanged when
+    /// `params` is `None` (a WKS-only forest).
+    pub fn with_local(
+        mut self,
+        mesh: &crate::mesh::Mesh,
+        params: Option<&LocalParams>,
+    ) -> Result<Self, ForestError> {
+        if let Some(p) = params {
+            self.local = Some(Arc::new(LocalDescriptor::new(mesh, &self.spectrum, p)?));
+        }
         Ok(self)
     }
 }

@@ -429,10 +429,7 @@ impl TrainerSink {
 
     /// `shape` with the local histograms of `mesh` when the next model splits on them.
     fn with_local(&self, shape: TrainingShape, mesh: &Mesh) -> Result<TrainingShape, Error> {
-        match self.local_params() {
-            Some(l) => shape.with_local(mesh, &l).map_err(|e| Error::Training(e.to_string())),
-            None => Ok(shape),
-        }
+        shape.with_local(mesh, self.local_params().as_ref()).map_err(|e| Error::Training(e.to_string()))
     }
 
     /// The perturbed copies of a training shape (the `augment` kinds), made once per shape and
