@@ -32,6 +32,12 @@ fn shipped_pipelines_are_valid() {
     assert_eq!(names, ["eval", "match", "train", "watch"]);
     let watch = PipelineSpec::from_file(&dir.join("watch.toml")).unwrap();
     assert!(watch.is_daemon());
+    // The single-view candidate count is checked like the other one.
+    let text = std::fs::read_to_string(dir.join("watch.toml")).unwrap();
+    assert!(text.contains("part_top_k = 20"));
+    let err = PipelineSpec::from_toml(&text.replace("part_top_k = 20", "part_top_k = 0"), "watch.toml")
+        .unwrap_err();
+    assert!(err.to_string().contains("stage `matcher` (matcher): part_top_k = 0"), "{err}");
 }
 
 #[test]

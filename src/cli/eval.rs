@@ -92,6 +92,13 @@ pub struct EvalArgs {
     /// Split candidates per node.
     #[arg(long, default_value_t = 20)]
     pub candidates: usize,
+    /// Each child of a split keeps at least this many training samples (default 1; 5 with
+    /// --local-descriptors).
+    #[arg(long, value_name = "N")]
+    pub min_leaf: Option<usize>,
+    /// Deepest level of a tree (the root is 0).
+    #[arg(long, default_value_t = 25, value_name = "N")]
+    pub max_depth: usize,
     /// Eigenpairs of every shape's spectrum, the descriptors' basis (K; `train --k`).
     #[arg(short, long, default_value_t = 100)]
     pub k: usize,
@@ -195,7 +202,8 @@ pub struct EvalArgs {
     /// Print, for every test, where the wrong points come from: the fraction within 0.05 of the
     /// best forest candidate, of the game's matches, of the map after each stage, and of the
     /// regulariser with the partial-scan variants (`trust`: boundary-aware anchor weights, `free`:
-    /// reference samples as extra candidates, `top20`: 20 candidates per sample in the game, `top20+free`).
+    /// reference samples as extra candidates, `top20`: 20 candidates per sample in the game on a
+    /// scan that is not a single view, `top20+free`, `part top5`: 5 on a single view).
     #[arg(long)]
     pub diagnose: bool,
     /// Regularise each test shape onto the reference itself instead of onto the training shape
@@ -220,6 +228,10 @@ pub struct EvalArgs {
     /// forest candidates (0: none).
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub free_candidates: usize,
+    /// Forest candidates per farthest-point sample in the regulariser's game on a single-view
+    /// scan (an open part of less than half the reference's area; 5 on other scans).
+    #[arg(long, default_value_t = 20, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub part_game_candidates: u32,
     /// Also write `points.csv`: every evaluated point's error per method (strict and flips
     /// allowed) and where it was mapped, for finding where the errors are.
     #[arg(long)]
@@ -319,6 +331,7 @@ impl EvalArgs {
                 boundary_trust: self.boundary_trust,
                 free_candidates: self.free_candidates,
             },
+            part_top_k: self.part_game_candidates as usize,
             ..Default::default()
         }
     }
@@ -731,18 +744,20 @@ fn diagnosis_variants(
     base: &shapeforest::regularizer::RegularizerParams,
 ) -> Vec<(String, shapeforest::regularizer::RegularizerParams)> {
     use shapeforest::regularizer::PartialScanParams;
+    let (k, part_k) = (base.top_k, base.part_top_k);
     [
-        ("trust", true, 0, base.top_k),
-        ("free", false, 1000, base.top_k),
-        ("top20", false, 0, 20),
-        ("top20+free", false, 1000, 20),
+        ("trust", true, 0, k, part_k),
+        ("free", false, 1000, k, part_k),
+        ("top20", false, 0, 20, part_k),
+        ("top20+free", false, 1000, 20, part_k),
+        ("part top5", false, 0, k, 5),
     ]
     .into_iter()
-    .map(|(name, boundary_trust, free_candidates, top_k)| {
+    .map(|(name, boundary_trust, free_candidates, top_k, part_top_k)| {
         let partial_scan = PartialScanParams { boundary_trust, free_candidates };
         (
             name.to_string(),
-            shapeforest::regularizer::RegularizerParams { partial_scan, top_k, ..base.clone() },
+            shapeforest::regularizer::RegularizerParams { partial_scan, top_k, part_top_k, ..base.clone() },
         )
     })
     .collect()
@@ -788,6 +803,11 @@ pub fn run(args: EvalArgs) -> Result<()> {
             .n_trees(args.trees)
             .seed(args.seed)
             .candidates_per_node(args.candidates)
+            .min_samples_leaf(
+                args.min_leaf
+                    .unwrap_or(shapeforest::forest::default_min_samples_leaf(args.local.local_descriptors)),
+            )
+            .max_depth(args.max_depth)
             .local_share(args.local.local_share),
         spectrum: SpectrumParams::new(args.k),
         cache_dir: (!args.no_cache).then(|| args.cache.clone()),

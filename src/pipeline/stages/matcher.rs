@@ -44,6 +44,10 @@ pub struct MatcherConfig {
     /// Candidate reference points per sample. Default 5.
     #[serde(default = "default_top_k")]
     pub top_k: usize,
+    /// Candidate reference points per sample on a single-view scan (an open part of less than
+    /// half the reference's area). Default 20.
+    #[serde(default = "default_part_top_k")]
+    pub part_top_k: usize,
     /// Distance-distortion scale σ of the game's payoff (distances / √area). Default 0.05.
     #[serde(default = "default_sigma")]
     pub sigma: f64,
@@ -55,19 +59,32 @@ fn default_samples() -> usize {
 fn default_top_k() -> usize {
     5
 }
+fn default_part_top_k() -> usize {
+    RegularizerParams::default().part_top_k
+}
 fn default_sigma() -> f64 {
     0.05
 }
 
 impl Default for MatcherConfig {
     fn default() -> Self {
-        Self { samples: default_samples(), top_k: default_top_k(), sigma: default_sigma() }
+        Self {
+            samples: default_samples(),
+            top_k: default_top_k(),
+            part_top_k: default_part_top_k(),
+            sigma: default_sigma(),
+        }
     }
 }
 
 /// The regulariser parameters of a matcher and an fmap configuration.
 pub fn regularizer_params(m: &MatcherConfig, f: &FmapConfig) -> RegularizerParams {
-    let mut p = RegularizerParams { n_samples: m.samples, top_k: m.top_k, ..Default::default() };
+    let mut p = RegularizerParams {
+        n_samples: m.samples,
+        top_k: m.top_k,
+        part_top_k: m.part_top_k,
+        ..Default::default()
+    };
     p.matcher.sigma = m.sigma;
     p.fmap.k_test = f.basis;
     p.fmap.k_ref = f.basis;
@@ -94,6 +111,9 @@ pub fn check_regularizer(p: &RegularizerParams) -> Result<(), String> {
     }
     if p.top_k == 0 {
         return Err("top_k = 0: at least one candidate per sample is needed".into());
+    }
+    if p.part_top_k == 0 {
+        return Err("part_top_k = 0: at least one candidate per sample is needed".into());
     }
     p.matcher.check().map_err(|e| e.to_string())?;
     if let Some(g) = &p.growth {
