@@ -399,7 +399,6 @@ fn a_daemon_trainer_with_local_descriptors_matches_a_single_view() {
     let close = near_truth(reference, &view.kept, &map);
     println!("single view matched within 0.1 with local histograms: {close:.3}");
     d.stop();
-    // Measured: 0.765 with leaves of 5 vertices, the default with histograms (0.737 with leaves
-    // of 1; with the same copies and WKS splits, the test above: 0.499).
+    // Measured: 0.737 (with the same copies and WKS splits, the test above: 0.499).
     assert!(close > 0.6, "single view with local histograms: {close}");
 }

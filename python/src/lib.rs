@@ -24,8 +24,8 @@ use shapeforest::{
     descriptor::{heat_kernel_signature, wave_kernel_signature, HksParams, LocalParams, WksParams},
     eval,
     forest::{
-        augmented_copies, default_min_samples_leaf, labels_identity, reference_table, Augmentation,
-        ModelReference, RandomForest, TrainingSet, TrainingShape,
+        augmented_copies, labels_identity, reference_table, Augmentation, ModelReference, RandomForest,
+        TrainingSet, TrainingShape,
     },
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{self, Mesh as CoreMesh},
@@ -466,11 +466,11 @@ impl PyForest {
     /// prepared as a scan is, so the forest learns partial scans (as `shapeforest train
     /// --augment`). `local_descriptors=True` lets the forest split on local histograms of the
     /// surface too (as `shapeforest train --local-descriptors`; for partial scans).
-    /// `min_samples_leaf` (default 1; 5 with local histograms): the smallest leaf.
+    /// `min_samples_leaf` (default 1: pure leaves): the smallest leaf a split may leave.
     /// `progress=True` reports spectra, copies and trees on stderr; a callable gets
     /// `(stage, done, total)`.
     #[staticmethod]
-    #[pyo3(signature = (meshes, labels = None, *, n_trees = 15, max_depth = 25, k = 100, seed = 0, augment = Vec::new(), augment_copies = 15, local_descriptors = false, min_samples_leaf = None, progress = None))]
+    #[pyo3(signature = (meshes, labels = None, *, n_trees = 15, max_depth = 25, k = 100, seed = 0, augment = Vec::new(), augment_copies = 15, local_descriptors = false, min_samples_leaf = 1, progress = None))]
     #[allow(clippy::too_many_arguments)]
     fn train(
         py: Python<'_>,
@@ -483,7 +483,7 @@ impl PyForest {
         augment: Vec<String>,
         augment_copies: usize,
         local_descriptors: bool,
-        min_samples_leaf: Option<usize>,
+        min_samples_leaf: usize,
         progress: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let local = local_descriptors.then(LocalParams::default);
@@ -525,11 +525,10 @@ impl PyForest {
                     .collect::<PyResult<_>>()?,
             ),
         };
-        let min_leaf = min_samples_leaf.unwrap_or(default_min_samples_leaf(local_descriptors));
         let params = RandomForest::params()
             .n_trees(n_trees)
             .max_depth(max_depth)
-            .min_samples_leaf(min_leaf)
+            .min_samples_leaf(min_samples_leaf)
             .seed(seed);
         let progress = match progress {
             Some(p) => Progress::from(p)?,

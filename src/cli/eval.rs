@@ -92,10 +92,10 @@ pub struct EvalArgs {
     /// Split candidates per node.
     #[arg(long, default_value_t = 20)]
     pub candidates: usize,
-    /// Each child of a split keeps at least this many training samples (default 1; 5 with
-    /// --local-descriptors).
-    #[arg(long, value_name = "N")]
-    pub min_leaf: Option<usize>,
+    /// Each child of a split keeps at least this many training samples (1: pure leaves; see
+    /// README "Local histograms" for 5 on single views).
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    pub min_leaf: usize,
     /// Deepest level of a tree (the root is 0).
     #[arg(long, default_value_t = 25, value_name = "N")]
     pub max_depth: usize,
@@ -232,6 +232,12 @@ pub struct EvalArgs {
     /// scan (an open part of less than half the reference's area; 5 on other scans).
     #[arg(long, default_value_t = 20, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub part_game_candidates: u32,
+    /// Farthest-point samples of the regulariser's game on the test shape.
+    #[arg(long, default_value_t = 50, value_name = "N", value_parser = clap::value_parser!(u32).range(3..=1000))]
+    pub game_samples: u32,
+    /// Distance-distortion scale σ of the game's payoff (× √area).
+    #[arg(long, default_value_t = 0.05, value_name = "S", value_parser = parse_positive)]
+    pub game_sigma: f64,
     /// Also write `points.csv`: every evaluated point's error per method (strict and flips
     /// allowed) and where it was mapped, for finding where the errors are.
     #[arg(long)]
@@ -332,6 +338,11 @@ impl EvalArgs {
                 free_candidates: self.free_candidates,
             },
             part_top_k: self.part_game_candidates as usize,
+            n_samples: self.game_samples as usize,
+            matcher: shapeforest::matching::GameMatcherParams {
+                sigma: self.game_sigma,
+                ..Default::default()
+            },
             ..Default::default()
         }
     }
@@ -347,6 +358,14 @@ pub(super) fn parse_share(text: &str) -> Result<f64, String> {
     match text.trim().parse::<f64>() {
         Ok(f) if (0.0..=1.0).contains(&f) => Ok(f),
         _ => Err(format!("expected a fraction between 0 and 1, got {text:?}")),
+    }
+}
+
+/// A positive finite number.
+pub(super) fn parse_positive(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(x) if x > 0.0 && x.is_finite() => Ok(x),
+        _ => Err(format!("expected a positive finite number, got {text:?}")),
     }
 }
 
@@ -803,10 +822,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             .n_trees(args.trees)
             .seed(args.seed)
             .candidates_per_node(args.candidates)
-            .min_samples_leaf(
-                args.min_leaf
-                    .unwrap_or(shapeforest::forest::default_min_samples_leaf(args.local.local_descriptors)),
-            )
+            .min_samples_leaf(args.min_leaf)
             .max_depth(args.max_depth)
             .local_share(args.local.local_share),
         spectrum: SpectrumParams::new(args.k),

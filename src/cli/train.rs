@@ -6,8 +6,8 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use shapeforest::{
     forest::{
-        default_min_samples_leaf, labels_identity, per_vertex_labels, read_label_map, read_per_label_rows,
-        reference_table, ModelReference, RandomForest, TrainingSet, TrainingShape,
+        labels_identity, per_vertex_labels, read_label_map, read_per_label_rows, reference_table,
+        ModelReference, RandomForest, TrainingSet, TrainingShape,
     },
     mesh::Mesh,
     regularizer::symmetry_from_pairs,
@@ -87,10 +87,10 @@ pub struct TrainArgs {
     /// Split candidates per node.
     #[arg(long, default_value_t = 20)]
     pub candidates: usize,
-    /// Each child of a split keeps at least this many training samples (default 1; 5 with
-    /// --local-descriptors).
-    #[arg(long, value_name = "N")]
-    pub min_leaf: Option<usize>,
+    /// Each child of a split keeps at least this many training samples (1: pure leaves; see
+    /// README "Local histograms" for 5 on single views).
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    pub min_leaf: usize,
     /// Random seed (training is deterministic given the seed).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -332,7 +332,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
         .n_trees(args.trees)
         .max_depth(args.depth)
         .candidates_per_node(args.candidates)
-        .min_samples_leaf(args.min_leaf.unwrap_or(default_min_samples_leaf(args.local.local_descriptors)))
+        .min_samples_leaf(args.min_leaf)
         .seed(args.seed)
         .local_share(args.local.local_share)
         .check()?;

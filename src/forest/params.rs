@@ -47,30 +47,6 @@ fn is_default_local_share(share: &f64) -> bool {
     share.to_bits() == default_local_share().to_bits()
 }
 
-/// The smallest leaf of a forest that splits on local histograms, where the surfaces (CLI,
-/// daemon, Python) are not told otherwise; a WKS forest keeps 1 (pure leaves, the paper's).
-/// A leaf of several training vertices gives each tree a posterior over a few nearby labels
-/// instead of one: on single views of SCAPE (34 tests, `--local-descriptors`, 20 game
-/// candidates) 54.5 % within 0.05 with leaves of 1, 60.6 % with 5, 57.4 % with 12
-/// (README "Local histograms").
-pub const LOCAL_MIN_SAMPLES_LEAF: usize = 5;
-
-/// The smallest leaf where none is given: [`LOCAL_MIN_SAMPLES_LEAF`] for a forest with local
-/// histograms, 1 otherwise.
-///
-/// ```
-/// use shapeforest::forest::{default_min_samples_leaf, LOCAL_MIN_SAMPLES_LEAF};
-/// assert_eq!(default_min_samples_leaf(false), 1);
-/// assert_eq!(default_min_samples_leaf(true), LOCAL_MIN_SAMPLES_LEAF);
-/// ```
-pub fn default_min_samples_leaf(local: bool) -> usize {
-    if local {
-        LOCAL_MIN_SAMPLES_LEAF
-    } else {
-        1
-    }
-}
-
 /// Hyper-parameters that passed [`RandomForestParams::check`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RandomForestValidParams(pub(crate) RandomForestParams);

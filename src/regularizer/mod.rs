@@ -2,7 +2,8 @@
 //! symmetry-confused posterior into a consistent dense point-to-point map.
 //!
 //! 1. `n_samples` (default 50) Euclidean farthest-point samples on the test shape;
-//! 2. candidate matches: each sample with its `top_k` most probable reference points;
+//! 2. candidate matches: each sample with its `top_k` most probable reference points
+//!    (`part_top_k` on a single view, whose posterior is flatter);
 //! 3. geodesic distances among the samples (test) and among the candidate points (reference),
 //!    by the heat method, normalised by √area;
 //! 4. game-theoretic matching picks a sparse, geodesically consistent subset with weights ω;

@@ -19,8 +19,8 @@ use sha2::{Digest, Sha256};
 use crate::{
     descriptor::LocalParams,
     forest::{
-        augmented_copies, default_min_samples_leaf, reference_table, Augmentation, ModelReference,
-        RandomForest, RandomForestValidParams, TrainingSet, TrainingShape,
+        augmented_copies, reference_table, Augmentation, ModelReference, RandomForest,
+        RandomForestValidParams, TrainingSet, TrainingShape,
     },
     geodesic::HeatParams,
     mesh::{read_mesh_limited, write_mesh, Mesh, Perturbation},
@@ -48,7 +48,7 @@ impl StageConfig for TrainerConfig {
         parse: parse_config::<TrainerConfig>,
     };
     fn check(&self) -> Result<(), String> {
-        self.forest_params(self.local_descriptors)?;
+        self.forest_params()?;
         self.augment_kinds().map(|_| ())
     }
     fn build(&self, b: &mut Builder<'_>, input: Option<AnyPort>) -> Result<Option<AnyPort>, Error> {
@@ -94,10 +94,9 @@ pub struct TrainerConfig {
     /// Maximum tree depth. Default 25.
     #[serde(default = "default_depth")]
     pub max_depth: usize,
-    /// Smallest leaf. Default 1; 5 for a forest with local histograms
-    /// ([`crate::forest::LOCAL_MIN_SAMPLES_LEAF`]).
-    #[serde(default)]
-    pub min_samples_leaf: Option<usize>,
+    /// Smallest leaf. Default 1.
+    #[serde(default = "default_one")]
+    pub min_samples_leaf: usize,
     /// Split candidates per node. Default 20.
     #[serde(default = "default_candidates")]
     pub candidates_per_node: usize,
@@ -152,6 +151,9 @@ fn default_per_update() -> usize {
 fn default_depth() -> usize {
     25
 }
+fn default_one() -> usize {
+    1
+}
 fn default_candidates() -> usize {
     20
 }
@@ -166,7 +168,7 @@ impl Default for TrainerConfig {
             trees: default_trees(),
             trees_per_update: default_per_update(),
             max_depth: default_depth(),
-            min_samples_leaf: None,
+            min_samples_leaf: 1,
             candidates_per_node: default_candidates(),
             seed: 0,
             reference: None,
@@ -181,14 +183,13 @@ impl Default for TrainerConfig {
 }
 
 impl TrainerConfig {
-    /// The forest hyper-parameters, checked (the error names the parameter), for a forest with
-    /// (`local`) or without local histograms.
-    pub fn forest_params(&self, local: bool) -> Result<RandomForestValidParams, String> {
+    /// The forest hyper-parameters, checked (the error names the parameter).
+    pub fn forest_params(&self) -> Result<RandomForestValidParams, String> {
         RandomForest::params()
             .n_trees(self.trees)
             .trees_per_update(self.trees_per_update)
             .max_depth(self.max_depth)
-            .min_samples_leaf(self.min_samples_leaf.unwrap_or(default_min_samples_leaf(local)))
+            .min_samples_leaf(self.min_samples_leaf)
             .candidates_per_node(self.candidates_per_node)
             .seed(self.seed)
             .check()
@@ -284,7 +285,7 @@ impl TrainerSink {
         heat: HeatParams,
         live: Arc<LiveModel>,
     ) -> Result<Self, Error> {
-        let params = config.forest_params(config.local_descriptors).map_err(Error::Training)?;
+        let params = config.forest_params().map_err(Error::Training)?;
         let augment = config.augment_kinds().map_err(Error::Training)?.into_iter().map(|p| vec![p]).collect();
         let cache = SpectrumCache::new(data.cache()).ok();
         Ok(Self {
@@ -675,14 +676,8 @@ impl TrainerSink {
         let n_copies = copies.len();
         shapes.extend(copies);
         let set = TrainingSet::new(shapes, n_labels)?;
-        // The settings follow the kind of forest the set makes (a model grown without
-        // histograms stays so, whatever the configuration says).
-        let params = if set.local_params().is_some() == self.config.local_descriptors {
-            self.params.clone()
-        } else {
-            self.config.forest_params(set.local_params().is_some()).map_err(Error::Training)?
-        };
-        let mut forest = params
+        let mut forest = self
+            .params
             .fit_with(current.as_ref().map(|m| m.forest.as_ref()), &set)
             .map_err(|e| Error::Training(e.to_string()))?;
         if forest.reference().is_none() {
