@@ -149,6 +149,19 @@ def test_a_forest_on_local_histograms_predicts_from_the_mesh_and_round_trips(cre
     np.testing.assert_array_equal(sf.Forest.load(path).predict(scan, top_k=1)[0], labels)
 
 
+def test_leaves_of_several_vertices_spread_each_tree_over_more_labels(creatures):
+    scan = creatures[6]
+    pure = sf.Forest.train(creatures[:3], n_trees=3, seed=1)
+    wide = sf.Forest.train(creatures[:3], n_trees=3, seed=1, min_samples_leaf=5)
+    count = lambda f: (f.predict(scan, top_k=20)[1] > 0).sum(axis=1)
+    # A pure leaf holds one label, so three trees name at most three per vertex (where the
+    # depth cap leaves no node impure).
+    assert count(pure).mean() <= 3
+    assert count(wide).mean() > count(pure).mean() + 1
+    with pytest.raises(sf.ShapeforestError, match="min_samples_leaf"):
+        sf.Forest.train(creatures[:2], n_trees=2, min_samples_leaf=0)
+
+
 def test_bad_input_raises_with_the_cli_messages(tmp_path, forest, creatures):
     with pytest.raises(ValueError, match=r"vertices must be an \(n, 3\) array"):
         sf.Mesh(np.zeros((4, 2)), [[0, 1, 2]])
