@@ -450,15 +450,19 @@ mod tests {
         forest: OlderForest,
     }
 
-    #[test]
-    fn a_forest_without_local_histograms_is_the_file_older_builds_read() {
+    /// One synthetic shape of 800 vertices with identity labels and 20 eigenpairs.
+    fn one_shape_set() -> TrainingSet {
         let fam = creature_family(&CreatureParams { target_vertices: 800, ..Default::default() }, 1).unwrap();
         let sp = crate::spectral::compute_spectrum(&fam.shapes[0], &crate::spectral::SpectrumParams::new(20))
             .unwrap();
         let n = fam.template.n_vertices();
-        let set =
-            TrainingSet::new(vec![TrainingShape::new("a", std::sync::Arc::new(sp), labels_identity(n))], n)
-                .unwrap();
+        TrainingSet::new(vec![TrainingShape::new("a", std::sync::Arc::new(sp), labels_identity(n))], n)
+            .unwrap()
+    }
+
+    #[test]
+    fn a_forest_without_local_histograms_is_the_file_older_builds_read() {
+        let set = one_shape_set();
         // A share set without histograms has no meaning and is not stored.
         let forest = RandomForest::params().n_trees(2).local_share(0.4).fit(&set).unwrap();
         let bytes = forest.to_bytes().unwrap();
@@ -471,13 +475,7 @@ mod tests {
 
     #[test]
     fn version_1_files_are_still_read() {
-        let fam = creature_family(&CreatureParams { target_vertices: 800, ..Default::default() }, 1).unwrap();
-        let sp = crate::spectral::compute_spectrum(&fam.shapes[0], &crate::spectral::SpectrumParams::new(20))
-            .unwrap();
-        let n = fam.template.n_vertices();
-        let set =
-            TrainingSet::new(vec![TrainingShape::new("a", std::sync::Arc::new(sp), labels_identity(n))], n)
-                .unwrap();
+        let set = one_shape_set();
         let forest = RandomForest::params().n_trees(2).fit(&set).unwrap();
         let v1 = PayloadV1 {
             header: forest.header(),

@@ -810,7 +810,9 @@ pub fn sparse_matches(
     let t0 = Instant::now();
     let n_samples = params.n_samples.min(test.mesh.n_vertices());
     let samples = farthest_point_sampling_euclidean(&test.mesh, n_samples, None)?;
-    let top_k = if partial::is_small_part(test, reference) { params.part_top_k } else { params.top_k };
+    // A single view: more candidates per sample, and its orientation read extrinsically (below).
+    let small_part = partial::is_small_part(test, reference);
+    let top_k = if small_part { params.part_top_k } else { params.top_k };
     let mut ref_points: Vec<usize> = Vec::new();
     let mut ref_index = std::collections::HashMap::new();
     let mut candidates = Vec::new();
@@ -876,7 +878,7 @@ pub fn sparse_matches(
     // through the reference's symmetry (an isometry: the game's consistency is kept).
     let (mut ref_points, mut ref_fields) = (ref_points, ref_fields);
     if let (Some(symmetry), Some(threshold)) = (reference.symmetry.as_deref(), params.unflip) {
-        if partial::is_small_part(test, reference) {
+        if small_part {
             let pairs: Vec<(usize, usize)> =
                 game.matches.iter().map(|m| (samples[m.test], ref_points[m.reference])).collect();
             if flip::matches_orientation(&test.mesh, &reference.mesh, &pairs) < -threshold {
