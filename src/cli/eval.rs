@@ -232,6 +232,11 @@ pub struct EvalArgs {
     /// scan (an open part of less than half the reference's area; 5 on other scans).
     #[arg(long, default_value_t = 20, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub part_game_candidates: u32,
+    /// On a single-view scan play the game among the --part-game-candidates only, without the
+    /// second game among 5 whose completed map is kept when the forest's posterior supports it
+    /// better (`RegularizerParams::part_alternative`).
+    #[arg(long)]
+    pub no_part_alternative: bool,
     /// Farthest-point samples of the regulariser's game on the test shape.
     #[arg(long, default_value_t = 50, value_name = "N", value_parser = clap::value_parser!(u32).range(3..=1000))]
     pub game_samples: u32,
@@ -338,6 +343,7 @@ impl EvalArgs {
                 free_candidates: self.free_candidates,
             },
             part_top_k: self.part_game_candidates as usize,
+            part_alternative: !self.no_part_alternative,
             n_samples: self.game_samples as usize,
             matcher: shapeforest::matching::GameMatcherParams {
                 sigma: self.game_sigma,
@@ -905,6 +911,16 @@ pub fn run(args: EvalArgs) -> Result<()> {
             mirrored.join(", ")
         );
     }
+    let alternatives = report.tests.iter().filter(|t| t.alternative_kept).count();
+    if alternatives > 0 {
+        println!(
+            "single views whose map completes the game among {} candidates, better supported than the one among {}: \
+             {alternatives} of {} (results.csv: alternative_kept; --no-part-alternative: none)",
+            params.regularizer.top_k,
+            params.regularizer.part_top_k,
+            report.tests.len()
+        );
+    }
     if params.relay {
         let relayed = report.tests.iter().filter(|t| t.relay.is_some()).count();
         println!(
@@ -1113,7 +1129,7 @@ fn write_point_errors(out: &Path, report: &ProtocolReport) -> Result<()> {
 
 fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usize) -> Result<()> {
     let mut csv = String::from(
-        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation,regularised_onto,voted_with,reversed_area,prediction_mirrored\n",
+        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation,regularised_onto,voted_with,reversed_area,prediction_mirrored,alternative_kept,part_n,part_within_005,part_sym_within_005\n",
     );
     for t in &report.tests {
         let scan = t.scan.as_deref().unwrap_or(&class.shapes[t.test].mesh);
@@ -1127,9 +1143,15 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
             };
             let st = ErrorSummary::of(&m.strict);
             let sy = m.symmetric.as_ref().map(|y| ErrorSummary::of(y));
+            // The same errors on the matched part (the largest component of a scan in pieces).
+            let in_part = |e: &[f64]| -> Vec<f64> {
+                e.iter().zip(&t.in_matched_part).filter(|&(_, &inside)| inside).map(|(&x, _)| x).collect()
+            };
+            let part = ErrorSummary::of(&in_part(&m.strict));
+            let part_sym = m.symmetric.as_ref().map(|y| ErrorSummary::of(&in_part(y)));
             let _ = writeln!(
                 csv,
-                "{},{},{},{},{},{},{},{},{:.6},{:.4},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{:.6},{:.4},{},{},{},{},{},{},{:.6},{}",
                 report.shape_names[t.test],
                 report.shape_names[t.reference],
                 m.method.name(),
@@ -1144,6 +1166,10 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
                 t.votes.iter().map(|&v| report.shape_names[v].as_str()).collect::<Vec<_>>().join(" "),
                 t.reversed_area.map_or(String::new(), |r| format!("{r:.4}")),
                 t.prediction_mirrored,
+                t.alternative_kept,
+                part.n,
+                part.within_005,
+                part_sym.map_or(String::new(), |y| format!("{:.6}", y.within_005)),
             );
         }
     }

@@ -334,6 +334,10 @@ pub struct TestResult {
     /// the map onto the nearest pose).
     #[serde(default)]
     pub prediction_mirrored: bool,
+    /// Whether the map onto the nearest pose completes the game among `top_k` candidates,
+    /// kept over the one among `part_top_k` on a single view ([`crate::regularizer::DenseMap::alternative_kept`]).
+    #[serde(default)]
+    pub alternative_kept: bool,
     /// Training shapes (indices into the input list, sorted).
     pub training: Vec<usize>,
     /// Whether the forest was reused from an earlier test with the same training set.
@@ -824,7 +828,7 @@ pub fn run_protocol(
         };
         let one_vote = targets.len() == 1;
         let (first, reversed) = regularize_onto(&prepared_relays, target, &prediction, one_vote)?;
-        let prediction_mirrored = first.prediction_mirrored;
+        let (prediction_mirrored, alternative_kept) = (first.prediction_mirrored, first.alternative_kept);
         let dense = if !one_vote {
             voted(first, &targets[1..], &prepared_relays)?
         } else if params.doubt.is_some_and(|limit| reversed.is_some_and(|r| r > limit)) && ranked.len() > 1 {
@@ -941,6 +945,7 @@ pub fn run_protocol(
             votes: targets[1..].to_vec(),
             reversed_area: reversed,
             prediction_mirrored,
+            alternative_kept,
             training: key,
             forest_reused,
             mean_support: prediction.mean_support(),

@@ -169,33 +169,12 @@ pub fn select_by_posterior<S: crate::fmap::SoftCorrespondence + ?Sized>(
     margin: f64,
     rounds: usize,
 ) -> Vec<usize> {
-    use rayon::prelude::*;
     let n = test.n_vertices();
     if maps.is_empty() {
         return Vec::new();
     }
-    let s = sigma * reference.surface_area().max(f64::MIN_POSITIVE).sqrt();
-    let inv = 1.0 / (2.0 * s * s).max(f64::MIN_POSITIVE);
-    let pos = &reference.vertices;
-    let scores: Vec<Vec<f64>> = maps
-        .iter()
-        .map(|map| {
-            (0..n)
-                .into_par_iter()
-                .map(|m| {
-                    let q = pos[map[m]];
-                    let mut total = 0.0;
-                    posterior.for_each_entry(m, &mut |r, p| {
-                        if let Some(x) = pos.get(r) {
-                            let d2 = (x[0] - q[0]).powi(2) + (x[1] - q[1]).powi(2) + (x[2] - q[2]).powi(2);
-                            total += p * (-d2 * inv).exp();
-                        }
-                    });
-                    total
-                })
-                .collect()
-        })
-        .collect();
+    let scores: Vec<Vec<f64>> =
+        maps.iter().map(|map| posterior_support(test, reference, posterior, map, sigma)).collect();
     let (offsets, neighbours) = crate::mesh::face_neighbour_lists(&test.faces, n);
     let smoothed: Vec<Vec<f64>> =
         scores.into_iter().map(|s| super::flip::diffuse(&offsets, &neighbours, s, rounds)).collect();
@@ -210,6 +189,36 @@ pub fn select_by_posterior<S: crate::fmap::SoftCorrespondence + ?Sized>(
                 }
             });
             maps[best][m]
+        })
+        .collect()
+}
+
+/// How densely the forest's posterior surrounds each test vertex's image under `map` (test
+/// vertex → reference vertex): `Σ_r p(r) exp(−|x_r − x_image|² / 2σ²)` over the vertex's
+/// candidates `r` (Euclidean, `σ` = `sigma` · √area of the reference).
+pub fn posterior_support<S: crate::fmap::SoftCorrespondence + ?Sized>(
+    test: &Mesh,
+    reference: &Mesh,
+    posterior: &S,
+    map: &[usize],
+    sigma: f64,
+) -> Vec<f64> {
+    use rayon::prelude::*;
+    let s = sigma * reference.surface_area().max(f64::MIN_POSITIVE).sqrt();
+    let inv = 1.0 / (2.0 * s * s).max(f64::MIN_POSITIVE);
+    let pos = &reference.vertices;
+    (0..test.n_vertices().min(map.len()))
+        .into_par_iter()
+        .map(|m| {
+            let Some(q) = pos.get(map[m]) else { return 0.0 };
+            let mut total = 0.0;
+            posterior.for_each_entry(m, &mut |r, p| {
+                if let Some(x) = pos.get(r) {
+                    let d2 = (x[0] - q[0]).powi(2) + (x[1] - q[1]).powi(2) + (x[2] - q[2]).powi(2);
+                    total += p * (-d2 * inv).exp();
+                }
+            });
+            total
         })
         .collect()
 }

@@ -408,6 +408,8 @@ pub struct WireDense {
     #[serde(default)]
     prediction_mirrored: bool,
     timings: RegularizerTimings,
+    #[serde(default)]
+    alternative_kept: bool,
 }
 
 impl WireDense {
@@ -430,6 +432,7 @@ impl WireDense {
             mirror_rejected: d.mirror_rejected,
             prediction_mirrored: d.prediction_mirrored,
             timings: d.timings,
+            alternative_kept: d.alternative_kept,
         }
     }
 
@@ -454,6 +457,7 @@ impl WireDense {
             orientation_score: self.orientation_score,
             mirror_rejected: self.mirror_rejected,
             prediction_mirrored: self.prediction_mirrored,
+            alternative_kept: self.alternative_kept,
             timings: self.timings,
         })
     }
@@ -476,6 +480,9 @@ pub struct WireSparse {
     #[serde(default)]
     prediction_mirrored: bool,
     timings: RegularizerTimings,
+    /// [`SparseMatches::alternative`].
+    #[serde(default)]
+    alternative: Option<Box<WireSparse>>,
 }
 
 impl WireSparse {
@@ -495,11 +502,18 @@ impl WireSparse {
             mirror_rejected: s.mirror_rejected,
             prediction_mirrored: s.prediction_mirrored,
             timings: s.timings,
+            alternative: s.alternative.as_deref().map(|a| Box::new(Self::of(a))),
         }
     }
 
     /// The sparse matches, checked against the scan's and the reference's vertex counts.
     pub fn into_sparse(self, n_test: usize, n_ref: usize) -> Result<SparseMatches, String> {
+        // One level: the alternative of an alternative is not a thing the matcher sends.
+        let alternative = match self.alternative {
+            Some(a) if a.alternative.is_some() => return Err("nested alternative sparse matches".into()),
+            Some(a) => Some(Box::new(a.into_sparse(n_test, n_ref)?)),
+            None => None,
+        };
         let test_fields = self.test_fields.into_mat()?;
         let ref_fields = self.ref_fields.into_mat()?;
         let bad = self.samples.iter().any(|&v| v >= n_test)
@@ -535,6 +549,7 @@ impl WireSparse {
             mirror_rejected: self.mirror_rejected,
             prediction_mirrored: self.prediction_mirrored,
             timings: self.timings,
+            alternative,
         })
     }
 }
@@ -579,4 +594,51 @@ pub fn mesh_bytes(mesh: &Mesh) -> Result<Vec<u8>, String> {
 /// A spectrum, for the store.
 pub fn spectrum_bytes(s: &Spectrum) -> Result<Vec<u8>, String> {
     encode(SPECTRUM, s)
+}
+
+#[cfg(test)]
+mod tests {
+    use faer::Mat;
+
+    use super::*;
+
+    fn sparse(n_test: usize, n_ref: usize, reference: usize) -> SparseMatches {
+        SparseMatches {
+            samples: vec![0, 1],
+            ref_points: vec![reference, 2],
+            test_fields: Mat::from_fn(n_test, 1, |v, _| v as f64),
+            ref_fields: Mat::from_fn(n_ref, 1, |v, _| 2.0 * v as f64),
+            game: GameMatching {
+                matches: vec![WeightedMatch { test: 0, reference: 0, weight: 1.0 }],
+                iterations: 3,
+                converged: true,
+                payoff: 0.5,
+            },
+            matches: vec![VertexMatch { test: 0, reference, weight: 1.0 }],
+            orientation_score: 0.25,
+            mirror_rejected: false,
+            prediction_mirrored: false,
+            timings: RegularizerTimings::default(),
+            alternative: None,
+        }
+    }
+
+    #[test]
+    fn a_single_views_second_equilibrium_travels_with_the_sparse_matches() {
+        let mut s = sparse(4, 5, 1);
+        s.alternative = Some(Box::new(sparse(4, 5, 3)));
+        let bytes = encode(SPARSE_MATCHES, &WireSparse::of(&s)).unwrap();
+        let back = decode::<WireSparse>(SPARSE_MATCHES, &bytes).unwrap().into_sparse(4, 5).unwrap();
+        assert_eq!(back.matches[0].reference, 1);
+        let alternative = back.alternative.expect("the alternative was lost on the wire");
+        assert_eq!(alternative.matches[0].reference, 3);
+        assert_eq!(alternative.ref_fields[(4, 0)], 8.0);
+        // Checked as the first is: sparse matches of other shapes are refused.
+        assert!(decode::<WireSparse>(SPARSE_MATCHES, &bytes).unwrap().into_sparse(4, 3).is_err());
+        let mut nested = sparse(4, 5, 3);
+        nested.alternative = Some(Box::new(sparse(4, 5, 1)));
+        s.alternative = Some(Box::new(nested));
+        let err = WireSparse::of(&s).into_sparse(4, 5).err().unwrap();
+        assert!(err.contains("nested"), "{err}");
+    }
 }

@@ -48,6 +48,10 @@ pub struct MatcherConfig {
     /// half the reference's area). Default 20.
     #[serde(default = "default_part_top_k")]
     pub part_top_k: usize,
+    /// On a single-view scan, also play the game among `top_k` candidates and keep the
+    /// completed map the forest's posterior supports best. Default true.
+    #[serde(default = "default_part_alternative")]
+    pub part_alternative: bool,
     /// Distance-distortion scale σ of the game's payoff (distances / √area). Default 0.05.
     #[serde(default = "default_sigma")]
     pub sigma: f64,
@@ -62,6 +66,9 @@ fn default_top_k() -> usize {
 fn default_part_top_k() -> usize {
     RegularizerParams::default().part_top_k
 }
+fn default_part_alternative() -> bool {
+    RegularizerParams::default().part_alternative
+}
 fn default_sigma() -> f64 {
     0.05
 }
@@ -72,6 +79,7 @@ impl Default for MatcherConfig {
             samples: default_samples(),
             top_k: default_top_k(),
             part_top_k: default_part_top_k(),
+            part_alternative: default_part_alternative(),
             sigma: default_sigma(),
         }
     }
@@ -83,6 +91,7 @@ pub fn regularizer_params(m: &MatcherConfig, f: &FmapConfig) -> RegularizerParam
         n_samples: m.samples,
         top_k: m.top_k,
         part_top_k: m.part_top_k,
+        part_alternative: m.part_alternative,
         ..Default::default()
     };
     p.matcher.sigma = m.sigma;
