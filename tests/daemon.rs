@@ -398,6 +398,11 @@ fn a_daemon_trainer_with_local_descriptors_matches_a_single_view() {
     assert_eq!(map.len(), view.mesh.n_vertices());
     let close = near_truth(reference, &view.kept, &map);
     println!("single view matched within 0.1 with local histograms: {close:.3}");
+    // A single view plays two games; the report says which map was kept.
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data.join("matched/view/view.report.json")).unwrap())
+            .unwrap();
+    assert!(report["alternative_kept"].is_boolean(), "{report}");
     d.stop();
     // Measured: 0.737 (with the same copies and WKS splits, the test above: 0.499).
     assert!(close > 0.6, "single view with local histograms: {close}");

@@ -17,6 +17,10 @@ pub struct MapQuality {
     /// the reference's symmetry ([`DenseMap::prediction_mirrored`]).
     #[serde(default)]
     pub prediction_mirrored: bool,
+    /// Whether, on a single view, the map of the game among the complete scan's candidates was
+    /// kept over the one among more ([`DenseMap::alternative_kept`]).
+    #[serde(default)]
+    pub alternative_kept: bool,
     /// Anchors of the last round of anchor growth (0: growth off).
     pub grown_anchors: usize,
     /// Mean orientation agreement of the grown map (`null`: growth off).
@@ -36,6 +40,7 @@ impl MapQuality {
             orientation_score: dense.orientation_score,
             mirror_rejected: dense.mirror_rejected,
             prediction_mirrored: dense.prediction_mirrored,
+            alternative_kept: dense.alternative_kept,
             grown_anchors: dense.grown_anchors,
             dense_orientation_agreement: dense.dense_orientation,
             reoriented: dense.reoriented,
