@@ -950,9 +950,7 @@ pub fn sparse_matches(
     };
     let mut sparse = equilibrium(&candidates)?;
     if alternative_k.is_some() {
-        let mut alternative = equilibrium(&fewer)?;
-        alternative.timings = RegularizerTimings::default();
-        sparse.alternative = Some(Box::new(alternative));
+        sparse.alternative = Some(Box::new(equilibrium(&fewer)?));
     }
     timings.matching_s = t0.elapsed().as_secs_f64();
     sparse.timings = timings;

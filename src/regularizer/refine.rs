@@ -196,6 +196,16 @@ pub fn select_by_posterior<S: crate::fmap::SoftCorrespondence + ?Sized>(
 /// How densely the forest's posterior surrounds each test vertex's image under `map` (test
 /// vertex → reference vertex): `Σ_r p(r) exp(−|x_r − x_image|² / 2σ²)` over the vertex's
 /// candidates `r` (Euclidean, `σ` = `sigma` · √area of the reference).
+///
+/// ```
+/// use shapeforest::{mesh::Mesh, regularizer::posterior_support};
+/// let m = Mesh::new(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2]]).unwrap();
+/// // Every vertex's only candidate is vertex 1: a map onto it is supported, one onto 0 barely.
+/// let candidates: Vec<usize> = vec![1, 1, 1];
+/// let on = posterior_support(&m, &m, candidates.as_slice(), &[1, 1, 1], 0.1);
+/// let off = posterior_support(&m, &m, candidates.as_slice(), &[0, 0, 0], 0.1);
+/// assert!(on.iter().all(|&s| (s - 1.0).abs() < 1e-12) && off.iter().all(|&s| s < 1e-6));
+/// ```
 pub fn posterior_support<S: crate::fmap::SoftCorrespondence + ?Sized>(
     test: &Mesh,
     reference: &Mesh,
