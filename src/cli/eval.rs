@@ -96,8 +96,8 @@ pub struct EvalArgs {
     /// README "Local histograms" for 5 on single views).
     #[arg(long, default_value_t = 1, value_name = "N")]
     pub min_leaf: usize,
-    /// Deepest level of a tree (the root is 0).
-    #[arg(long, default_value_t = 25, value_name = "N")]
+    /// Deepest level of a tree (the root is 0; `train --depth`).
+    #[arg(long = "depth", alias = "max-depth", default_value_t = 25, value_name = "N")]
     pub max_depth: usize,
     /// Eigenpairs of every shape's spectrum, the descriptors' basis (K; `train --k`).
     #[arg(short, long, default_value_t = 100)]
@@ -998,13 +998,9 @@ fn format_table(report: &ProtocolReport) -> String {
         let mut part_sym = Vec::new();
         for t in &report.tests {
             if let Some(m) = t.errors(Method::ForestRegularized) {
-                for (j, &inside) in t.in_matched_part.iter().enumerate() {
-                    if inside {
-                        part.push(m.strict[j]);
-                        if let Some(y) = &m.symmetric {
-                            part_sym.push(y[j]);
-                        }
-                    }
+                part.extend(t.matched_part_errors(&m.strict));
+                if let Some(y) = &m.symmetric {
+                    part_sym.extend(t.matched_part_errors(y));
                 }
             }
         }
@@ -1144,11 +1140,9 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
             let st = ErrorSummary::of(&m.strict);
             let sy = m.symmetric.as_ref().map(|y| ErrorSummary::of(y));
             // The same errors on the matched part (the largest component of a scan in pieces).
-            let in_part = |e: &[f64]| -> Vec<f64> {
-                e.iter().zip(&t.in_matched_part).filter(|&(_, &inside)| inside).map(|(&x, _)| x).collect()
-            };
-            let part = ErrorSummary::of(&in_part(&m.strict));
-            let part_sym = m.symmetric.as_ref().map(|y| ErrorSummary::of(&in_part(y)));
+            let in_part = |e: &[f64]| ErrorSummary::of(&t.matched_part_errors(e).collect::<Vec<_>>());
+            let part = in_part(&m.strict);
+            let part_sym = m.symmetric.as_deref().map(in_part);
             let _ = writeln!(
                 csv,
                 "{},{},{},{},{},{},{},{},{:.6},{:.4},{},{},{},{},{},{},{:.6},{}",

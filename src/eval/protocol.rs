@@ -393,6 +393,12 @@ impl TestResult {
     pub fn errors(&self, method: Method) -> Option<&MethodErrors> {
         self.methods.iter().find(|m| m.method == method)
     }
+
+    /// The entries of `errors` (one per evaluated point, as [`MethodErrors::strict`]) at the
+    /// points that lie in the matched part of the scan ([`TestResult::in_matched_part`]).
+    pub fn matched_part_errors<'a>(&'a self, errors: &'a [f64]) -> impl Iterator<Item = f64> + 'a {
+        errors.iter().zip(&self.in_matched_part).filter(|&(_, &inside)| inside).map(|(&e, _)| e)
+    }
 }
 
 /// The result of the whole protocol.
