@@ -79,7 +79,7 @@ class Forest:
         augment: Sequence[str] = (),
         augment_copies: int = 15,
         local_descriptors: bool = False,
-        min_samples_leaf: int = 1,
+        min_samples_leaf: Optional[int] = None,
         progress: Progress = None,
     ) -> "Forest":
         """Trains on labelled meshes. ``labels=None``: the meshes share one vertex indexing and
@@ -88,7 +88,8 @@ class Forest:
         seeded perturbed copies of every mesh per kind, so partial scans are learnt.
         ``local_descriptors=True`` lets the forest split on local histograms of the surface too
         (for partial scans; prediction then reads the mesh, as it always does here).
-        ``min_samples_leaf``: the smallest leaf a split may leave (default 1: pure leaves).
+        ``min_samples_leaf``: the smallest leaf a split may leave, in training samples (default
+        ``None``: an eighth of the training set's samples per label, at least 1; 1: pure leaves).
         ``progress=True`` reports on stderr; a callable gets ``(stage, done, total)``."""
     @staticmethod
     def load(path: Union[str, PathLike[str]]) -> "Forest":

@@ -177,6 +177,18 @@ fn a_model_with_local_histograms_is_trained_written_as_version_4_and_matches_a_s
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("splits on local histograms"), "{err}");
+    // The smallest leaf was chosen from the training set, and a leaf of 0 samples is refused.
+    assert!(err.contains("sample(s) (auto)"), "{err}");
+    let bad = bin()
+        .args(["train", "--synthetic", "--min-leaf", "0", "--out"])
+        .arg(dir.path().join("x.sfm"))
+        .output()
+        .unwrap();
+    let bad_err = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        !bad.status.success() && bad_err.contains("expected `auto` or a number of samples of at least 1"),
+        "{bad_err}"
+    );
     let bytes = std::fs::read(&model).unwrap();
     assert_eq!(u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]), 4, "format version");
 

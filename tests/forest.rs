@@ -313,3 +313,41 @@ fn local_histograms_must_be_carried_by_every_shape_or_none_and_an_update_keeps_t
     assert_eq!(grown.local(), Some(&local));
     assert_eq!(grown.n_trees(), 2);
 }
+
+#[test]
+fn an_automatic_leaf_holds_an_eighth_of_each_labels_samples() {
+    let f = family(6);
+    let n = f.base.n_vertices();
+    let fit = |set: &TrainingSet, leaf: Option<usize>| {
+        let p = RandomForest::params().n_trees(2).seed(1);
+        match leaf {
+            Some(l) => p.min_samples_leaf(l),
+            None => p,
+        }
+        .fit(set)
+        .unwrap()
+    };
+    // Six complete shapes: six examples of each label, so the default keeps pure leaves and
+    // grows the very trees that `min_samples_leaf(1)` does.
+    let complete = set_of(&f, &[0, 1, 2, 3, 4, 5]);
+    assert_eq!(complete.samples_per_label(), 6.0);
+    let auto = fit(&complete, None);
+    assert_eq!(auto.min_samples_leaf(), 1);
+    assert_eq!(auto.to_bytes().unwrap(), fit(&complete, Some(1)).to_bytes().unwrap());
+    // Fifty copies, half of them labelled on one half of the vertices only (as single-view copies
+    // are): 37.5 examples per label, leaves of 5; a number given is kept.
+    let copies: Vec<TrainingShape> = (0..50)
+        .map(|i| {
+            let labels = labels_identity(n)
+                .into_iter()
+                .enumerate()
+                .map(|(v, l)| l.filter(|_| i % 2 == 0 || v < n / 2));
+            TrainingShape::new(format!("copy{i}"), f.spectra[i % 6].clone(), labels.collect())
+        })
+        .collect();
+    let set = TrainingSet::new(copies, n).unwrap();
+    assert!((set.samples_per_label() - 37.5).abs() < 0.1, "{}", set.samples_per_label());
+    let auto = fit(&set, None);
+    assert_eq!(auto.min_samples_leaf(), 5);
+    assert_eq!(fit(&set, Some(2)).min_samples_leaf(), 2);
+}

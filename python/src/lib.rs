@@ -466,11 +466,13 @@ impl PyForest {
     /// prepared as a scan is, so the forest learns partial scans (as `shapeforest train
     /// --augment`). `local_descriptors=True` lets the forest split on local histograms of the
     /// surface too (as `shapeforest train --local-descriptors`; for partial scans).
-    /// `min_samples_leaf` (default 1: pure leaves): the smallest leaf a split may leave.
+    /// `min_samples_leaf`: the smallest leaf a split may leave, in training samples (default
+    /// `None`: an eighth of the training set's samples per label, at least 1, as `shapeforest
+    /// train --min-leaf auto`; 1: pure leaves).
     /// `progress=True` reports spectra, copies and trees on stderr; a callable gets
     /// `(stage, done, total)`.
     #[staticmethod]
-    #[pyo3(signature = (meshes, labels = None, *, n_trees = 15, max_depth = 25, k = 100, seed = 0, augment = Vec::new(), augment_copies = 15, local_descriptors = false, min_samples_leaf = 1, progress = None))]
+    #[pyo3(signature = (meshes, labels = None, *, n_trees = 15, max_depth = 25, k = 100, seed = 0, augment = Vec::new(), augment_copies = 15, local_descriptors = false, min_samples_leaf = None, progress = None))]
     #[allow(clippy::too_many_arguments)]
     fn train(
         py: Python<'_>,
@@ -483,10 +485,15 @@ impl PyForest {
         augment: Vec<String>,
         augment_copies: usize,
         local_descriptors: bool,
-        min_samples_leaf: usize,
+        min_samples_leaf: Option<usize>,
         progress: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let local = local_descriptors.then(LocalParams::default);
+        if min_samples_leaf == Some(0) {
+            return Err(sf_err(
+                "min_samples_leaf = 0: at least 1 sample (None: chosen from the training set)",
+            ));
+        }
         if meshes.is_empty() {
             return Err(sf_err("nothing to train on: give at least one mesh"));
         }
@@ -528,7 +535,7 @@ impl PyForest {
         let params = RandomForest::params()
             .n_trees(n_trees)
             .max_depth(max_depth)
-            .min_samples_leaf(min_samples_leaf)
+            .min_samples_leaf(min_samples_leaf.unwrap_or(0))
             .seed(seed);
         let progress = match progress {
             Some(p) => Progress::from(p)?,

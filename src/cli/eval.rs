@@ -92,9 +92,10 @@ pub struct EvalArgs {
     /// Split candidates per node.
     #[arg(long, default_value_t = 20)]
     pub candidates: usize,
-    /// Each child of a split keeps at least this many training samples (1: pure leaves; see
-    /// README "Local histograms" for 5 on single views).
-    #[arg(long, default_value_t = 1, value_name = "N")]
+    /// Each child of a split keeps at least this many training samples (`train --min-leaf`):
+    /// `auto` (default) an eighth of the training set's samples per label (pure leaves for
+    /// complete shapes, 5 with 15 single-view copies each), or a number (1: pure leaves).
+    #[arg(long, default_value = "auto", value_name = "N|auto", value_parser = parse_min_leaf)]
     pub min_leaf: usize,
     /// Deepest level of a tree (the root is 0; `train --depth`).
     #[arg(long = "depth", alias = "max-depth", default_value_t = 25, value_name = "N")]
@@ -357,6 +358,17 @@ impl EvalArgs {
 /// A kind of `--augment`.
 pub(super) fn parse_augment(text: &str) -> Result<Perturbation, String> {
     Perturbation::parse_kind(text)
+}
+
+/// `--min-leaf`: `auto` (0, resolved from the training set) or a number of samples ≥ 1.
+pub(super) fn parse_min_leaf(text: &str) -> Result<usize, String> {
+    match text.trim() {
+        "auto" => Ok(0),
+        t => match t.parse::<usize>() {
+            Ok(n) if n >= 1 => Ok(n),
+            _ => Err(format!("expected `auto` or a number of samples of at least 1, got {text:?}")),
+        },
+    }
 }
 
 /// A share of an area: a number in [0, 1].
@@ -911,6 +923,15 @@ pub fn run(args: EvalArgs) -> Result<()> {
             mirrored.join(", ")
         );
     }
+    let mut leaves: Vec<usize> = report.tests.iter().map(|t| t.min_samples_leaf).collect();
+    leaves.sort_unstable();
+    leaves.dedup();
+    let leaves: Vec<String> = leaves.iter().map(|l| l.to_string()).collect();
+    println!(
+        "forest leaves of at least {} training sample(s){}",
+        leaves.join(", "),
+        if args.min_leaf == 0 { " (--min-leaf auto: an eighth of the samples per label)" } else { "" }
+    );
     let alternatives = report.tests.iter().filter(|t| t.alternative_kept).count();
     if alternatives > 0 {
         println!(

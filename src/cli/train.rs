@@ -87,9 +87,11 @@ pub struct TrainArgs {
     /// Split candidates per node.
     #[arg(long, default_value_t = 20)]
     pub candidates: usize,
-    /// Each child of a split keeps at least this many training samples (1: pure leaves; see
-    /// README "Local histograms" for 5 on single views).
-    #[arg(long, default_value_t = 1, value_name = "N")]
+    /// Each child of a split keeps at least this many training samples: `auto` (default) an
+    /// eighth of the training set's samples per label, at least 1 (pure leaves for complete
+    /// shapes; 5 for six shapes with 15 single-view copies each, README "Local histograms"), or
+    /// a number (1: pure leaves).
+    #[arg(long, default_value = "auto", value_name = "N|auto", value_parser = super::eval::parse_min_leaf)]
     pub min_leaf: usize,
     /// Random seed (training is deterministic given the seed).
     #[arg(long, default_value_t = 0)]
@@ -410,12 +412,15 @@ pub fn run(args: TrainArgs) -> Result<()> {
     bar.finish_and_clear();
     let forest = forest.with_reference(reference)?;
     eprintln!(
-        "{} trees on {} shapes ({} samples, {} labels) in {:.1} s; mean leaf support {:.2}{}",
+        "{} trees on {} shapes ({} samples, {} labels) in {:.1} s; leaves of at least {} sample(s){}, mean leaf \
+         support {:.2}{}",
         forest.n_trees(),
         n_shapes,
         n_samples,
         n_labels,
         t0.elapsed().as_secs_f64(),
+        forest.min_samples_leaf(),
+        if args.min_leaf == 0 { " (auto)" } else { "" },
         forest.mean_leaf_support(),
         forest.local().map_or(String::new(), |l| format!(
             "; splits on local histograms (radius {}·√area, {} bins)",

@@ -344,6 +344,10 @@ pub struct TestResult {
     pub forest_reused: bool,
     /// Mean posterior support of the forest on the test shape (also the baseline's `k`).
     pub mean_support: f64,
+    /// The smallest leaf the test's forest was grown with (resolved when automatic:
+    /// [`crate::forest::RandomForestValidParams::resolved_for`]).
+    #[serde(default)]
+    pub min_samples_leaf: usize,
     /// Orientation score of the regularised forest's matches (positive: not mirrored).
     pub orientation_score: f64,
     /// Number of sparse matches chosen by the regulariser on the forest posterior.
@@ -955,6 +959,7 @@ pub fn run_protocol(
             training: key,
             forest_reused,
             mean_support: prediction.mean_support(),
+            min_samples_leaf: forest.min_samples_leaf(),
             orientation_score: dense.orientation_score,
             n_matches: dense.matches.len(),
             methods,

@@ -86,6 +86,12 @@ impl RandomForest {
         &self.params
     }
 
+    /// The smallest leaf the trees were grown with (an automatic one resolved from the training
+    /// set: [`RandomForestValidParams::resolved_for`]).
+    pub fn min_samples_leaf(&self) -> usize {
+        self.params.min_samples_leaf
+    }
+
     /// Size of the label set.
     pub fn n_labels(&self) -> usize {
         self.n_labels
@@ -348,8 +354,9 @@ impl RandomForestValidParams {
         set: &TrainingSet,
         on_tree: &(dyn Fn(usize) + Sync),
     ) -> Result<RandomForest, ForestError> {
-        let plan = self.plan(previous, set)?;
-        Ok(self.grow(plan, previous, on_tree))
+        let resolved = self.resolved_for(set);
+        let plan = resolved.plan(previous, set)?;
+        Ok(resolved.grow(plan, previous, on_tree))
     }
 
     /// A fresh fit ([`fit_with_progress`](Self::fit_with_progress) with no previous forest) that
@@ -363,9 +370,10 @@ impl RandomForestValidParams {
         set: TrainingSet,
         on_tree: &(dyn Fn(usize) + Sync),
     ) -> Result<RandomForest, ForestError> {
-        let plan = self.plan(None, &set)?;
+        let resolved = self.resolved_for(&set);
+        let plan = resolved.plan(None, &set)?;
         drop(set);
-        Ok(self.grow(plan, None, on_tree))
+        Ok(resolved.grow(plan, None, on_tree))
     }
 
     /// Everything a fit needs from the training set (its descriptor tables and samples).

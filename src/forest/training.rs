@@ -152,6 +152,23 @@ impl TrainingSet {
         self.n_labels
     }
 
+    /// The mean number of labelled vertices per label, over the labels some shape carries (0
+    /// for a set without labelled vertices): how many examples of each label the forest sees.
+    pub fn samples_per_label(&self) -> f64 {
+        let mut seen = vec![false; self.n_labels];
+        let mut samples = 0usize;
+        for l in self.shapes.iter().flat_map(|s| s.labels.iter().flatten()) {
+            seen[*l as usize] = true;
+            samples += 1;
+        }
+        let labels = seen.iter().filter(|&&s| s).count();
+        if labels == 0 {
+            0.0
+        } else {
+            samples as f64 / labels as f64
+        }
+    }
+
     /// Number of eigenpairs used from each shape (the minimum over the shapes).
     pub fn k(&self) -> usize {
         self.k

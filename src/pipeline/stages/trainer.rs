@@ -94,8 +94,10 @@ pub struct TrainerConfig {
     /// Maximum tree depth. Default 25.
     #[serde(default = "default_depth")]
     pub max_depth: usize,
-    /// Smallest leaf. Default 1.
-    #[serde(default = "default_one")]
+    /// Smallest leaf, in training samples. Default 0: automatic, an eighth of the training set's
+    /// samples per label, at least 1 (pure leaves for complete shapes, 5 with 15 single-view
+    /// copies each; [`RandomForestValidParams::resolved_for`]).
+    #[serde(default)]
     pub min_samples_leaf: usize,
     /// Split candidates per node. Default 20.
     #[serde(default = "default_candidates")]
@@ -151,9 +153,6 @@ fn default_per_update() -> usize {
 fn default_depth() -> usize {
     25
 }
-fn default_one() -> usize {
-    1
-}
 fn default_candidates() -> usize {
     20
 }
@@ -168,7 +167,7 @@ impl Default for TrainerConfig {
             trees: default_trees(),
             trees_per_update: default_per_update(),
             max_depth: default_depth(),
-            min_samples_leaf: 1,
+            min_samples_leaf: 0,
             candidates_per_node: default_candidates(),
             seed: 0,
             reference: None,
