@@ -93,8 +93,8 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = 20)]
     pub candidates: usize,
     /// Each child of a split keeps at least this many training samples (`train --min-leaf`):
-    /// `auto` (default) an eighth of the training set's samples per label (pure leaves for
-    /// complete shapes, 5 with 15 single-view copies each), or a number (1: pure leaves).
+    /// `auto` (default) an eighth of the training set's samples per label (pure leaves for six
+    /// complete shapes, 3–5 with 15 single-view copies of each), or a number (1: pure leaves).
     #[arg(long, default_value = "auto", value_name = "N|auto", value_parser = parse_min_leaf)]
     pub min_leaf: usize,
     /// Deepest level of a tree (the root is 0; `train --depth`).

@@ -88,9 +88,9 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 20)]
     pub candidates: usize,
     /// Each child of a split keeps at least this many training samples: `auto` (default) an
-    /// eighth of the training set's samples per label, at least 1 (pure leaves for complete
-    /// shapes; 5 for six shapes with 15 single-view copies each, README "Local histograms"), or
-    /// a number (1: pure leaves).
+    /// eighth of the training set's samples per label, at least 1 (pure leaves for six complete
+    /// shapes; 3–5 with 15 single-view copies of each, README "Leaves sized by the training
+    /// set"), or a number (1: pure leaves).
     #[arg(long, default_value = "auto", value_name = "N|auto", value_parser = super::eval::parse_min_leaf)]
     pub min_leaf: usize,
     /// Random seed (training is deterministic given the seed).

@@ -105,9 +105,9 @@ impl RandomForestParams {
     setter!(
         /// Each child of a split keeps at least this many samples. Default 0: chosen from the
         /// training set when fitting, [`AUTO_LEAF_SHARE`] (an eighth) of its mean number of
-        /// samples per label, at least 1 ([`RandomForestValidParams::resolved_for`]): pure leaves for six
-        /// complete shapes, leaves of 5 for six shapes with 15 single-view copies each. The
-        /// fitted forest stores the number used.
+        /// samples per label, at least 1 ([`RandomForestValidParams::resolved_for`]): pure
+        /// leaves for six complete shapes, leaves of 3–5 with 15 single-view copies of each.
+        /// The fitted forest stores the number used.
         min_samples_leaf: usize);
     setter!(
         /// Random split candidates `(e, k̄)` tried per node (default 20, at least 1). For each,
@@ -220,9 +220,9 @@ impl RandomForestValidParams {
     /// the one `set` asks for: [`AUTO_LEAF_SHARE`] of its mean number of samples per label
     /// ([`TrainingSet::samples_per_label`]), rounded, at least 1. A leaf then holds the same
     /// share of a label's examples however many copies the training set carries: six complete
-    /// shapes (six samples per label) keep pure leaves, six shapes with 15 single-view copies
-    /// each (38 per label) get leaves of 5. Fitting resolves it, so a forest stores the
-    /// number it used.
+    /// shapes (six samples per label) keep pure leaves, six SCAPE shapes with 15 single-view
+    /// copies each (38 per label) get leaves of 5 (TOSCA's cat, 4; victoria, 3). Fitting
+    /// resolves it, so a forest stores the number it used.
     ///
     /// ```
     /// use shapeforest::forest::RandomForest;

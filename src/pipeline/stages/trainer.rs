@@ -95,8 +95,8 @@ pub struct TrainerConfig {
     #[serde(default = "default_depth")]
     pub max_depth: usize,
     /// Smallest leaf, in training samples. Default 0: automatic, an eighth of the training set's
-    /// samples per label, at least 1 (pure leaves for complete shapes, 5 with 15 single-view
-    /// copies each; [`RandomForestValidParams::resolved_for`]).
+    /// samples per label, at least 1 (pure leaves for six complete shapes, 3–5 with 15
+    /// single-view copies of each; [`RandomForestValidParams::resolved_for`]).
     #[serde(default)]
     pub min_samples_leaf: usize,
     /// Split candidates per node. Default 20.
