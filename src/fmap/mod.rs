@@ -140,31 +140,36 @@ pub fn pullback_fmap<S: SoftCorrespondence + ?Sized>(
     }
     let n = test.n_vertices;
     let phi_r = reference.vectors();
-    // Rows of Π Φ_R, then C = Φ_Mᵀ diag(mass) (Π Φ_R).
-    let mut pulled = Mat::<f64>::zeros(n, k_ref);
-    let mut bad = None;
-    for m in 0..n {
-        soft.for_each_entry(m, &mut |r, p| {
-            if r >= reference.n_vertices {
-                bad = Some(r);
-                return;
-            }
-            for j in 0..k_ref {
-                pulled[(m, j)] += p * phi_r[(r, j)];
-            }
-        });
-    }
+    // Rows of Π Φ_R, then C = Φ_Mᵀ diag(mass) (Π Φ_R). Φ_R is read by rows (a soft
+    // correspondence names many reference vertices per test vertex): copied row-major first.
+    let n_ref = reference.n_vertices;
+    let rows: Vec<f64> = (0..n_ref).flat_map(|r| (0..k_ref).map(move |j| phi_r[(r, j)])).collect();
+    let mut pulled_rows = vec![0.0; n * k_ref];
+    let bad = pulled_rows
+        .par_chunks_mut(k_ref.max(1))
+        .enumerate()
+        .filter_map(|(m, row)| {
+            let mut bad = None;
+            soft.for_each_entry(m, &mut |r, p| {
+                if r >= n_ref {
+                    bad = Some(r);
+                    return;
+                }
+                for (x, &phi) in row.iter_mut().zip(&rows[r * k_ref..(r + 1) * k_ref]) {
+                    *x += p * phi;
+                }
+            });
+            row.iter_mut().for_each(|x| *x *= test.mass[m]);
+            bad
+        })
+        .min();
     if let Some(r) = bad {
         return Err(FmapError::SizeMismatch(format!(
             "the correspondence names reference vertex {r}, the reference has {}",
             reference.n_vertices
         )));
     }
-    for m in 0..n {
-        for j in 0..k_ref {
-            pulled[(m, j)] *= test.mass[m];
-        }
-    }
+    let pulled = Mat::from_fn(n, k_ref, |m, j| pulled_rows[m * k_ref + j]);
     let mut c = Mat::zeros(k_test, k_ref);
     matmul(c.as_mut(), Accum::Replace, basis(test, k_test).transpose(), pulled.as_ref(), 1.0, Par::rayon(0));
     Ok(c)

@@ -247,8 +247,38 @@ fn grow_rounds(
 }
 
 /// `Σ w·|x − y|` over equal-length slices, summed in 16 lanes (vectorised; the lanes are added
-/// up in a fixed order, so the result does not depend on the thread).
+/// up in a fixed order, so the result does not depend on the thread), compiled for the widest
+/// vector unit the CPU has: the same operations in the same order on every path, so the same
+/// bits.
 fn weighted_l1(x: &[f32], w: &[f32], y: &[f32]) -> f32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F, checked just above.
+            return unsafe { weighted_l1_avx512(x, w, y) };
+        }
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, checked just above.
+            return unsafe { weighted_l1_avx2(x, w, y) };
+        }
+    }
+    weighted_l1_impl(x, w, y)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn weighted_l1_avx512(x: &[f32], w: &[f32], y: &[f32]) -> f32 {
+    weighted_l1_impl(x, w, y)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn weighted_l1_avx2(x: &[f32], w: &[f32], y: &[f32]) -> f32 {
+    weighted_l1_impl(x, w, y)
+}
+
+#[inline(always)]
+fn weighted_l1_impl(x: &[f32], w: &[f32], y: &[f32]) -> f32 {
     const LANES: usize = 16;
     let mut acc = [0f32; LANES];
     let (xc, yc, wc) = (x.chunks_exact(LANES), y.chunks_exact(LANES), w.chunks_exact(LANES));
@@ -269,7 +299,7 @@ fn weighted_l1(x: &[f32], w: &[f32], y: &[f32]) -> f32 {
 
 #[cfg(test)]
 mod tests {
-    use super::weighted_l1;
+    use super::{weighted_l1, weighted_l1_impl};
 
     #[test]
     fn lane_sums_equal_the_plain_sum() {
@@ -281,6 +311,12 @@ mod tests {
             let plain: f64 = (0..len).map(|i| w[i] as f64 * (x[i] as f64 - y[i] as f64).abs()).sum();
             let lanes = weighted_l1(&x, &w, &y) as f64;
             assert!((lanes - plain).abs() <= 1e-5 * plain.max(1.0), "len {len}: {lanes} vs {plain}");
+            // The path compiled for this CPU's vector unit gives the bits of the portable one.
+            assert_eq!(
+                weighted_l1(&x, &w, &y).to_bits(),
+                weighted_l1_impl(&x, &w, &y).to_bits(),
+                "len {len}"
+            );
         }
     }
 }

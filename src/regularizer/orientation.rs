@@ -10,6 +10,9 @@ pub(super) struct Orientation {
     test: Vec<f64>,
     reference: Vec<f64>,
     width: usize,
+    /// Squared norms of each test and reference descriptor (summed as [`cosine`] sums them).
+    test_norms: Vec<f64>,
+    reference_norms: Vec<f64>,
 }
 
 impl Orientation {
@@ -23,32 +26,29 @@ impl Orientation {
             band_pass_functions(&reference.spectrum, &energies).as_ref(),
         );
         let width = o_test.len() / test.mesh.n_vertices().max(1);
-        Self { test: o_test, reference: o_ref, width }
+        let norms = |o: &[f64]| -> Vec<f64> {
+            o.chunks_exact(width.max(1)).map(|a| a.iter().fold(0.0, |s, x| s + x * x)).collect()
+        };
+        let (test_norms, reference_norms) = (norms(&o_test), norms(&o_ref));
+        Self { test: o_test, reference: o_ref, width, test_norms, reference_norms }
     }
 
     /// Agreement (cosine, in [−1, 1]) of test vertex `m`'s descriptor with reference vertex `r`'s:
     /// positive where matching `m` to `r` preserves orientation.
     pub(super) fn agreement(&self, m: usize, r: usize) -> f64 {
         let w = self.width;
-        cosine(&self.test[m * w..(m + 1) * w], &self.reference[r * w..(r + 1) * w])
+        let (a, b) = (&self.test[m * w..(m + 1) * w], &self.reference[r * w..(r + 1) * w]);
+        let ab = a.iter().zip(b).fold(0.0, |s, (x, y)| s + x * y);
+        let (aa, bb) = (self.test_norms[m], self.reference_norms[r]);
+        if aa > 0.0 && bb > 0.0 {
+            ab / (aa * bb).sqrt()
+        } else {
+            0.0
+        }
     }
 
     /// Mean agreement along a map (test vertex → reference vertex).
     pub(super) fn mean_agreement(&self, map: &[usize]) -> f64 {
         map.iter().enumerate().map(|(m, &r)| self.agreement(m, r)).sum::<f64>() / map.len().max(1) as f64
-    }
-}
-
-fn cosine(a: &[f64], b: &[f64]) -> f64 {
-    let (mut ab, mut aa, mut bb) = (0.0, 0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        ab += x * y;
-        aa += x * x;
-        bb += y * y;
-    }
-    if aa > 0.0 && bb > 0.0 {
-        ab / (aa * bb).sqrt()
-    } else {
-        0.0
     }
 }
