@@ -233,6 +233,11 @@ pub struct EvalArgs {
     /// scan (an open part of less than half the reference's area; 5 on other scans).
     #[arg(long, default_value_t = 20, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub part_game_candidates: u32,
+    /// On a single-view scan, weight of the forest's posterior in anchor growth's placements
+    /// (`AnchorGrowthParams::part_prior`, √area units; 0: placed by the anchors alone; README
+    /// "The forest's word in a view's placement").
+    #[arg(long, default_value_t = shapeforest::regularizer::AnchorGrowthParams::default().part_prior, value_name = "W", value_parser = parse_part_prior)]
+    pub part_prior: f64,
     /// On a single-view scan play the game among the --part-game-candidates only, without the
     /// second game among 5 whose completed map is kept when the forest's posterior supports it
     /// better (`RegularizerParams::part_alternative`).
@@ -345,6 +350,10 @@ impl EvalArgs {
             },
             part_top_k: self.part_game_candidates as usize,
             part_alternative: !self.no_part_alternative,
+            growth: Some(shapeforest::regularizer::AnchorGrowthParams {
+                part_prior: self.part_prior,
+                ..Default::default()
+            }),
             n_samples: self.game_samples as usize,
             matcher: shapeforest::matching::GameMatcherParams {
                 sigma: self.game_sigma,
@@ -352,6 +361,14 @@ impl EvalArgs {
             },
             ..Default::default()
         }
+    }
+}
+
+/// `--part-prior`: a finite weight ≥ 0.
+fn parse_part_prior(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(w) if w >= 0.0 && w.is_finite() => Ok(w),
+        _ => Err(format!("`{text}`: a finite weight ≥ 0 (0: off)")),
     }
 }
 

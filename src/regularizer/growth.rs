@@ -67,7 +67,9 @@ pub(super) fn grow_anchors(
     } else {
         Vec::new()
     };
-    let setup = GrowthSetup { samples, a_fields, orientation, boundary, extra };
+    let prior =
+        if p.part_prior > 0.0 && partial::is_small_part(test, reference) { p.part_prior } else { 0.0 };
+    let setup = GrowthSetup { samples, a_fields, orientation, boundary, extra, prior };
     // Reference columns are shared by both runs: the second run's rounds mostly revisit the
     // targets of the first, and each costs a heat-method solve.
     let mut ref_cols = std::collections::HashMap::new();
@@ -103,6 +105,9 @@ struct GrowthSetup {
     boundary: Option<Vec<f64>>,
     /// Reference vertices tried for every test vertex besides its forest candidates.
     extra: Vec<usize>,
+    /// Weight of the posterior's cost in a placement ([`AnchorGrowthParams::part_prior`] on a
+    /// single view, else 0).
+    prior: f64,
 }
 
 /// Normalised (÷ √area) reference distance columns from `targets`, as f32 (the ones the
@@ -144,7 +149,8 @@ fn grow_rounds(
 ) -> Result<(Vec<usize>, usize), Error> {
     use rayon::prelude::*;
     let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
-    let GrowthSetup { samples, a_fields, orientation, boundary, extra } = setup;
+    let GrowthSetup { samples, a_fields, orientation, boundary, extra, prior } = setup;
+    let prior = *prior;
     let trust = |d: f64, a: usize, b: usize| boundary.as_ref().map_or(1.0, |db| pair_trust(d, db[a], db[b]));
     let s = samples.len();
     let ts = 1.0 / test.sqrt_area();
@@ -216,9 +222,9 @@ fn grow_rounds(
                 let norm = 1.0 / wm.iter().sum::<f32>().max(f32::MIN_POSITIVE);
                 let mut best = (f32::INFINITY, map[m]);
                 let mut table = Vec::new();
-                let mut consider = |r: usize| {
+                let mut consider = |r: usize, prior_cost: f32| {
                     let br = &b[r * k..(r + 1) * k];
-                    let mut cost = weighted_l1(am, wm, br) * norm;
+                    let mut cost = weighted_l1(am, wm, br) * norm + prior_cost;
                     if gamma > 0.0 {
                         cost += gamma * (0.5 * (1.0 - orientation.agreement(m, r))) as f32;
                     }
@@ -229,9 +235,19 @@ fn grow_rounds(
                         table.push((r as u32, cost));
                     }
                 };
-                posterior.for_each_entry(m, &mut |r, _| consider(r));
+                if prior > 0.0 {
+                    let mut top = 0f64;
+                    posterior.for_each_entry(m, &mut |_, q| top = top.max(q));
+                    posterior.for_each_entry(m, &mut |r, q| {
+                        let surprise =
+                            (-(q / top).max(f64::MIN_POSITIVE).ln()).min(AnchorGrowthParams::PRIOR_CAP);
+                        consider(r, (prior * surprise) as f32)
+                    });
+                } else {
+                    posterior.for_each_entry(m, &mut |r, _| consider(r, 0.0));
+                }
                 for &r in extra {
-                    consider(r);
+                    consider(r, 0.0);
                 }
                 (best.1, table)
             })

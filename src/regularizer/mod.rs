@@ -449,6 +449,27 @@ pub struct AnchorGrowthParams {
     /// the two maps the one whose orientation descriptors agree best over all vertices is kept.
     /// Default 1.
     pub reorient: f64,
+    /// On a single view (an open part of less than half the reference's area, as
+    /// [`RegularizerParams::part_top_k`]): weight of the forest's posterior in every placement,
+    /// a candidate `r` of vertex `m` paying `part_prior · min(−ln(p(r|m) / max_r' p(r'|m)), 5)`
+    /// (√area units, like the distance cost; 0: off). A view's posterior is wide (its training
+    /// copies are partial too, and their leaves hold several samples), and among the many
+    /// candidates that fit the few anchors a view has, the forest's own preference is what tells
+    /// them apart. Other scans are placed by their anchors alone (a prior of 0.01 cost complete
+    /// FAUST_r scans 2.6 points). Default 0.02.
+    #[serde(default = "AnchorGrowthParams::default_part_prior")]
+    pub part_prior: f64,
+}
+
+impl AnchorGrowthParams {
+    /// The cap of a candidate's prior cost, in units of `part_prior`: a candidate the forest
+    /// gives less than e⁻⁵ ≈ 0.7 % of the vertex's most probable label's mass pays no more than
+    /// one it gives that much.
+    pub const PRIOR_CAP: f64 = 5.0;
+
+    fn default_part_prior() -> f64 {
+        0.02
+    }
 }
 
 impl Default for AnchorGrowthParams {
@@ -462,6 +483,7 @@ impl Default for AnchorGrowthParams {
             smoothing_rounds: 10,
             orientation: 0.01,
             reorient: 1.0,
+            part_prior: Self::default_part_prior(),
         }
     }
 }
@@ -481,7 +503,11 @@ impl AnchorGrowthParams {
         if !(self.smoothness >= 0.0 && self.smoothness.is_finite()) {
             return Err(format!("growth_smoothness = {}: must be finite and ≥ 0", self.smoothness));
         }
-        for (name, v) in [("growth_orientation", self.orientation), ("growth_reorient", self.reorient)] {
+        for (name, v) in [
+            ("growth_orientation", self.orientation),
+            ("growth_reorient", self.reorient),
+            ("growth_part_prior", self.part_prior),
+        ] {
             if !(v >= 0.0 && v.is_finite()) {
                 return Err(format!("{name} = {v}: must be finite and ≥ 0"));
             }

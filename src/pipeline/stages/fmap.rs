@@ -72,6 +72,10 @@ pub struct FmapConfig {
     /// (0: no second run). Default 1.
     #[serde(default = "default_growth_reorient")]
     pub growth_reorient: f64,
+    /// Anchor growth on a single-view scan: weight of the forest's posterior in every placement
+    /// (`AnchorGrowthParams::part_prior`; 0: off). Default 0.02.
+    #[serde(default = "default_growth_part_prior")]
+    pub growth_part_prior: f64,
 }
 
 fn default_growth_samples() -> usize {
@@ -95,6 +99,9 @@ fn default_growth_orientation() -> f64 {
 fn default_growth_reorient() -> f64 {
     AnchorGrowthParams::default().reorient
 }
+fn default_growth_part_prior() -> f64 {
+    AnchorGrowthParams::default().part_prior
+}
 
 fn default_basis() -> usize {
     40
@@ -117,6 +124,7 @@ impl Default for FmapConfig {
             growth_smoothness: default_growth_smoothness(),
             growth_orientation: default_growth_orientation(),
             growth_reorient: default_growth_reorient(),
+            growth_part_prior: default_growth_part_prior(),
         }
     }
 }

@@ -108,6 +108,7 @@ pub fn regularizer_params(m: &MatcherConfig, f: &FmapConfig) -> RegularizerParam
         smoothness: f.growth_smoothness,
         orientation: f.growth_orientation,
         reorient: f.growth_reorient,
+        part_prior: f.growth_part_prior,
         ..Default::default()
     });
     p
