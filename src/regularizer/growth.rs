@@ -67,8 +67,8 @@ pub(super) fn grow_anchors(
     } else {
         Vec::new()
     };
-    let prior =
-        if p.part_prior > 0.0 && partial::is_small_part(test, reference) { p.part_prior } else { 0.0 };
+    let prior = (p.part_prior > 0.0 && partial::is_small_part(test, reference))
+        .then(|| prior_costs(posterior, p.part_prior));
     let setup = GrowthSetup { samples, a_fields, orientation, boundary, extra, prior };
     // Reference columns are shared by both runs: the second run's rounds mostly revisit the
     // targets of the first, and each costs a heat-method solve.
@@ -105,9 +105,29 @@ struct GrowthSetup {
     boundary: Option<Vec<f64>>,
     /// Reference vertices tried for every test vertex besides its forest candidates.
     extra: Vec<usize>,
-    /// Weight of the posterior's cost in a placement ([`AnchorGrowthParams::part_prior`] on a
-    /// single view, else 0).
-    prior: f64,
+    /// On a single view, each posterior entry's cost in a placement (per test vertex, in the
+    /// posterior's order; [`AnchorGrowthParams::part_prior`]); `None` elsewhere.
+    prior: Option<Vec<Vec<f32>>>,
+}
+
+/// The placement cost of every posterior entry, `weight · min(−ln(p / p_max), cap)` per test
+/// vertex in the posterior's order (see [`AnchorGrowthParams::part_prior`]); computed once per
+/// growth, the rounds and both runs read it.
+fn prior_costs(posterior: &LabelledPosterior<'_>, weight: f64) -> Vec<Vec<f32>> {
+    use rayon::prelude::*;
+    (0..posterior.n_test_vertices())
+        .into_par_iter()
+        .map(|m| {
+            let mut top = 0f64;
+            posterior.for_each_entry(m, &mut |_, q| top = top.max(q));
+            let mut costs = Vec::new();
+            posterior.for_each_entry(m, &mut |_, q| {
+                let surprise = (-(q / top).max(f64::MIN_POSITIVE).ln()).min(AnchorGrowthParams::PRIOR_CAP);
+                costs.push((weight * surprise) as f32);
+            });
+            costs
+        })
+        .collect()
 }
 
 /// Normalised (÷ √area) reference distance columns from `targets`, as f32 (the ones the
@@ -150,7 +170,6 @@ fn grow_rounds(
     use rayon::prelude::*;
     let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
     let GrowthSetup { samples, a_fields, orientation, boundary, extra, prior } = setup;
-    let prior = *prior;
     let trust = |d: f64, a: usize, b: usize| boundary.as_ref().map_or(1.0, |db| pair_trust(d, db[a], db[b]));
     let s = samples.len();
     let ts = 1.0 / test.sqrt_area();
@@ -235,16 +254,12 @@ fn grow_rounds(
                         table.push((r as u32, cost));
                     }
                 };
-                if prior > 0.0 {
-                    let mut top = 0f64;
-                    posterior.for_each_entry(m, &mut |_, q| top = top.max(q));
-                    posterior.for_each_entry(m, &mut |r, q| {
-                        let surprise =
-                            (-(q / top).max(f64::MIN_POSITIVE).ln()).min(AnchorGrowthParams::PRIOR_CAP);
-                        consider(r, (prior * surprise) as f32)
-                    });
-                } else {
-                    posterior.for_each_entry(m, &mut |r, _| consider(r, 0.0));
+                match prior {
+                    Some(costs) => {
+                        let mut entry = costs[m].iter();
+                        posterior.for_each_entry(m, &mut |r, _| consider(r, *entry.next().unwrap_or(&0.0)));
+                    }
+                    None => posterior.for_each_entry(m, &mut |r, _| consider(r, 0.0)),
                 }
                 for &r in extra {
                     consider(r, 0.0);
