@@ -10,7 +10,7 @@ pub(super) struct Orientation {
     test: Vec<f64>,
     reference: Vec<f64>,
     width: usize,
-    /// Squared norms of each test and reference descriptor (summed as [`cosine`] sums them).
+    /// Squared norm of each test and reference vertex's descriptor (0 for an empty one).
     test_norms: Vec<f64>,
     reference_norms: Vec<f64>,
 }
@@ -26,10 +26,13 @@ impl Orientation {
             band_pass_functions(&reference.spectrum, &energies).as_ref(),
         );
         let width = o_test.len() / test.mesh.n_vertices().max(1);
-        let norms = |o: &[f64]| -> Vec<f64> {
-            o.chunks_exact(width.max(1)).map(|a| a.iter().fold(0.0, |s, x| s + x * x)).collect()
+        // One norm per vertex, also when the descriptors are empty (a spectrum too short for two
+        // bands: width 0, every agreement 0).
+        let norms = |o: &[f64], n: usize| -> Vec<f64> {
+            (0..n).map(|v| o[v * width..(v + 1) * width].iter().fold(0.0, |s, x| s + x * x)).collect()
         };
-        let (test_norms, reference_norms) = (norms(&o_test), norms(&o_ref));
+        let test_norms = norms(&o_test, test.mesh.n_vertices());
+        let reference_norms = norms(&o_ref, reference.mesh.n_vertices());
         Self { test: o_test, reference: o_ref, width, test_norms, reference_norms }
     }
 
