@@ -47,6 +47,7 @@ pub(super) fn grow_anchors(
     start: Vec<usize>,
     p: &AnchorGrowthParams,
     partial: &PartialScanParams,
+    prior: Option<&[Vec<f32>]>,
 ) -> Result<Grown, Error> {
     let orientation = Orientation::of(test, reference);
     // Shared by both runs: the samples, their test-side fields, and the reference fields of
@@ -67,8 +68,6 @@ pub(super) fn grow_anchors(
     } else {
         Vec::new()
     };
-    let prior = (p.part_prior > 0.0 && partial::is_small_part(test, reference))
-        .then(|| prior_costs(posterior, p.part_prior));
     let setup = GrowthSetup { samples, a_fields, orientation, boundary, extra, prior };
     // Reference columns are shared by both runs: the second run's rounds mostly revisit the
     // targets of the first, and each costs a heat-method solve.
@@ -93,7 +92,7 @@ pub(super) fn grow_anchors(
 }
 
 /// What both growth runs share.
-struct GrowthSetup {
+struct GrowthSetup<'a> {
     /// Farthest-point samples of the test shape.
     samples: Vec<usize>,
     /// Distances from the samples on the test shape (one column per sample, not normalised).
@@ -105,27 +104,30 @@ struct GrowthSetup {
     boundary: Option<Vec<f64>>,
     /// Reference vertices tried for every test vertex besides its forest candidates.
     extra: Vec<usize>,
-    /// On a single view, each posterior entry's cost in a placement (per test vertex, in the
-    /// posterior's order; [`AnchorGrowthParams::part_prior`]); `None` elsewhere.
-    prior: Option<Vec<Vec<f32>>>,
+    /// On a single view, each posterior entry's cost in a placement ([`prior_costs`]); `None`
+    /// elsewhere.
+    prior: Option<&'a [Vec<f32>]>,
 }
 
 /// The placement cost of every posterior entry, `weight · min(−ln(p / p_max), cap)` per test
-/// vertex in the posterior's order (see [`AnchorGrowthParams::part_prior`]); computed once per
-/// growth, the rounds and both runs read it.
-fn prior_costs(posterior: &LabelledPosterior<'_>, weight: f64) -> Vec<Vec<f32>> {
+/// vertex in the posterior's order (see [`AnchorGrowthParams::part_prior`]). It depends on the
+/// probabilities alone, not on the reference vertices the labels are read as, so one table
+/// serves the growth of both games' maps, both runs and every round.
+pub(super) fn prior_costs(prediction: &Prediction, weight: f64) -> Vec<Vec<f32>> {
     use rayon::prelude::*;
-    (0..posterior.n_test_vertices())
+    (0..prediction.n_vertices())
         .into_par_iter()
         .map(|m| {
-            let mut top = 0f64;
-            posterior.for_each_entry(m, &mut |_, q| top = top.max(q));
-            let mut costs = Vec::new();
-            posterior.for_each_entry(m, &mut |_, q| {
-                let surprise = (-(q / top).max(f64::MIN_POSITIVE).ln()).min(AnchorGrowthParams::PRIOR_CAP);
-                costs.push((weight * surprise) as f32);
-            });
-            costs
+            let (_, probs) = prediction.posterior(m);
+            let top = probs.iter().fold(0f64, |t, &q| t.max(q as f64));
+            probs
+                .iter()
+                .map(|&q| {
+                    let surprise =
+                        (-(q as f64 / top).max(f64::MIN_POSITIVE).ln()).min(AnchorGrowthParams::PRIOR_CAP);
+                    (weight * surprise) as f32
+                })
+                .collect()
         })
         .collect()
 }

@@ -1015,9 +1015,17 @@ pub fn dense_map(
     sparse: &SparseMatches,
     params: &RegularizerParams,
 ) -> Result<DenseMap, Error> {
-    let first = dense_of_equilibrium(test, reference, prediction, label_to_vertex, sparse, params)?;
+    // The prior's costs of a single view's placements, shared by both games' growths.
+    let prior = params
+        .growth
+        .as_ref()
+        .filter(|g| g.part_prior > 0.0 && partial::is_small_part(test, reference))
+        .map(|g| growth::prior_costs(prediction, g.part_prior));
+    let prior = prior.as_deref();
+    let first = dense_of_equilibrium(test, reference, prediction, label_to_vertex, sparse, params, prior)?;
     let Some(alternative) = sparse.alternative.as_deref() else { return Ok(first) };
-    let second = dense_of_equilibrium(test, reference, prediction, label_to_vertex, alternative, params)?;
+    let second =
+        dense_of_equilibrium(test, reference, prediction, label_to_vertex, alternative, params, prior)?;
     let table = posterior_table(prediction, label_to_vertex, sparse, reference)?;
     let posterior = LabelledPosterior { prediction, label_to_vertex: table.as_deref().or(label_to_vertex) };
     // The whole map is chosen: region by region (as `select_by_posterior` does for the
@@ -1060,6 +1068,8 @@ fn posterior_table(
     }
 }
 
+/// The dense map completed from one game's matches; `prior`: the single view's placement costs
+/// ([`growth::prior_costs`]), `None` on other scans.
 fn dense_of_equilibrium(
     test: &PreparedShape,
     reference: &PreparedShape,
@@ -1067,6 +1077,7 @@ fn dense_of_equilibrium(
     label_to_vertex: Option<&[usize]>,
     sparse: &SparseMatches,
     params: &RegularizerParams,
+    prior: Option<&[Vec<f32>]>,
 ) -> Result<DenseMap, Error> {
     check_inputs(test, reference, prediction, label_to_vertex, params)?;
     let n_ref = reference.mesh.n_vertices();
@@ -1126,8 +1137,15 @@ fn dense_of_equilibrium(
     let grown = match &params.growth {
         Some(g) if !weights.is_empty() => {
             let t0 = Instant::now();
-            let grown =
-                grow_anchors(test, reference, &posterior, anchor_map.clone(), g, &params.partial_scan)?;
+            let grown = grow_anchors(
+                test,
+                reference,
+                &posterior,
+                anchor_map.clone(),
+                g,
+                &params.partial_scan,
+                prior,
+            )?;
             timings.growth_s = t0.elapsed().as_secs_f64();
             Some(grown)
         }
