@@ -280,6 +280,58 @@ fn the_perturb_command_writes_a_scan_and_its_vertex_map() {
 }
 
 #[test]
+fn eval_point_errors_say_which_points_lie_in_the_matched_piece() {
+    // A single view with a hole cut through it is in pieces: `points.csv` marks each evaluated
+    // point, and per method the marked ones are those `results.csv` counts as the matched part.
+    let dir = tempfile::tempdir().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_shapeforest"))
+        .args(["eval", "--synthetic", "--quiet", "--no-cache", "--vertices", "1500", "--tests", "1"])
+        .args([
+            "--trees",
+            "2",
+            "--partial-view",
+            "--holes",
+            "1:0.1",
+            "--point-errors",
+            "--no-baseline",
+            "--out",
+        ])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let read = |name: &str| std::fs::read_to_string(dir.path().join(name)).unwrap();
+    let column = |header: &str, name: &str| header.split(',').position(|c| c == name).unwrap();
+    let points = read("points.csv");
+    let mut lines = points.lines();
+    let header = lines.next().unwrap();
+    let (method, in_part) = (column(header, "method"), column(header, "in_part"));
+    let mut counts = std::collections::HashMap::<String, (usize, usize)>::new();
+    for line in lines {
+        let cells: Vec<&str> = line.split(',').collect();
+        let count = counts.entry(cells[method].to_string()).or_default();
+        match cells[in_part] {
+            "1" => count.0 += 1,
+            "0" => count.1 += 1,
+            other => panic!("in_part must be 0 or 1, not {other:?}"),
+        }
+    }
+    let results = read("results.csv");
+    let mut lines = results.lines();
+    let header = lines.next().unwrap();
+    let (method, part_n) = (column(header, "method"), column(header, "part_n"));
+    let mut rows = 0;
+    for line in lines {
+        let cells: Vec<&str> = line.split(',').collect();
+        let (inside, outside) = counts[cells[method]];
+        assert_eq!(inside, cells[part_n].parse::<usize>().unwrap(), "{line}");
+        assert!(outside > 0, "the view's other pieces hold evaluated points too: {line}");
+        rows += 1;
+    }
+    assert!(rows >= 2, "{results}");
+}
+
+#[test]
 fn train_learns_from_perturbed_copies_when_asked() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("aug.sfm");

@@ -250,7 +250,8 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = 0.05, value_name = "S", value_parser = parse_positive)]
     pub game_sigma: f64,
     /// Also write `points.csv`: every evaluated point's error per method (strict and flips
-    /// allowed) and where it was mapped, for finding where the errors are.
+    /// allowed), where it was mapped and whether it lies in the matched part (`in_part`: the
+    /// largest piece of a scan in pieces), for finding where the errors are.
     #[arg(long)]
     pub point_errors: bool,
     /// With --pairs / --protocol: measure errors with first-order fast marching instead of the
@@ -1136,9 +1137,10 @@ struct PeerPairs {
     reference_symmetry: Option<Vec<usize>>,
 }
 
-/// `points.csv`: one line per test, evaluated point and method.
+/// `points.csv`: one line per test, evaluated point and method (`in_part`: 1 when the point lies
+/// in the matched part of the scan).
 fn write_point_errors(out: &Path, report: &ProtocolReport) -> Result<()> {
-    let mut csv = String::from("test,reference,label,method,strict,sym,mapped\n");
+    let mut csv = String::from("test,reference,label,method,strict,sym,mapped,in_part\n");
     for t in &report.tests {
         let labels = if t.labels.is_empty() { &report.eval_labels } else { &t.labels };
         for m in &t.methods {
@@ -1149,11 +1151,12 @@ fn write_point_errors(out: &Path, report: &ProtocolReport) -> Result<()> {
                     t.evaluated.get(i).and_then(|&v| m.map.get(v)).map_or(String::new(), |r| r.to_string());
                 let _ = writeln!(
                     csv,
-                    "{},{},{},{},{e:.6},{sym},{mapped}",
+                    "{},{},{},{},{e:.6},{sym},{mapped},{}",
                     report.shape_names[t.test],
                     report.shape_names[t.reference],
                     labels.get(i).copied().unwrap_or(usize::MAX),
                     m.method.name(),
+                    u8::from(t.in_matched_part.get(i).copied().unwrap_or(true)),
                 );
             }
         }
