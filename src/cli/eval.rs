@@ -365,12 +365,14 @@ impl EvalArgs {
     }
 }
 
+/// `text` as a finite number ≥ 0, the rule of `--part-prior` and of the reaches.
+fn finite_non_negative(text: &str) -> Option<f64> {
+    text.parse::<f64>().ok().filter(|x| *x >= 0.0 && x.is_finite())
+}
+
 /// `--part-prior`: a finite weight ≥ 0.
 fn parse_part_prior(text: &str) -> Result<f64, String> {
-    match text.parse::<f64>() {
-        Ok(w) if w >= 0.0 && w.is_finite() => Ok(w),
-        _ => Err(format!("`{text}`: a finite weight ≥ 0 (0: off)")),
-    }
+    finite_non_negative(text).ok_or_else(|| format!("`{text}`: a finite weight ≥ 0 (0: off)"))
 }
 
 /// A kind of `--augment`.
@@ -407,10 +409,8 @@ pub(super) fn parse_positive(text: &str) -> Result<f64, String> {
 
 /// A reach (× √area): a finite number ≥ 0.
 pub(super) fn parse_reach(text: &str) -> Result<f64, String> {
-    match text.trim().parse::<f64>() {
-        Ok(r) if r >= 0.0 && r.is_finite() => Ok(r),
-        _ => Err(format!("expected a finite number ≥ 0 (× √area), got {text:?}")),
-    }
+    finite_non_negative(text.trim())
+        .ok_or_else(|| format!("expected a finite number ≥ 0 (× √area), got {text:?}"))
 }
 
 /// The local rigid fit of `--rigid-radius R` (0: off).
