@@ -72,7 +72,7 @@ class Forest:
         meshes: Sequence[Mesh],
         labels: Optional[Sequence[ArrayLike]] = None,
         *,
-        n_trees: int = 15,
+        n_trees: Optional[int] = None,
         max_depth: int = 25,
         k: int = 100,
         seed: int = 0,

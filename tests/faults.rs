@@ -77,7 +77,10 @@ fn a_kill_during_the_first_training_is_resumed_at_the_next_start() {
     let fam = family(7);
     let n = fam.template.n_vertices();
     // No model yet, a scan waiting: a SIGTERM must leave it queued, not reject it.
-    let more_trees = |t: String| t.replace("trees = 15", "trees = 60");
+    let more_trees = |t: String| {
+        assert!(t.contains("\ntrees = 0 "), "the pipeline's trainer sets `trees = 0`");
+        t.replace("\ntrees = 0 ", "\ntrees = 60 ")
+    };
     let mut d = Daemon::start_with(&data, false, more_trees, &[]);
     wait_until(&mut d, "the folders", || data.join("incoming").is_dir());
     drop_mesh(&data.join("incoming"), "waiting.off", &fam.shapes[6]);

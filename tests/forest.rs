@@ -112,8 +112,8 @@ fn deterministic_given_seed_and_posteriors_sum_to_one() {
 #[test]
 fn params_check_messages_state_the_rule() {
     let msg = |p: shapeforest::forest::RandomForestParams| p.check().unwrap_err().to_string();
-    let m = msg(RandomForest::params().n_trees(0));
-    assert!(m.contains("`n_trees`") && m.contains("must be at least 1, got 0"), "{m}");
+    let m = msg(RandomForest::params().max_depth(0));
+    assert!(m.contains("`max_depth`") && m.contains("must be at least 1, got 0"), "{m}");
     let m = msg(RandomForest::params().bagging_fraction(1.5));
     assert!(m.contains("`bagging_fraction`") && m.contains("greater than 0 and at most 1, got 1.5"), "{m}");
     let m = msg(RandomForest::params().min_samples_split(1));
@@ -350,4 +350,33 @@ fn an_automatic_leaf_holds_an_eighth_of_each_labels_samples() {
     let auto = fit(&set, None);
     assert_eq!(auto.min_samples_leaf(), 5);
     assert_eq!(fit(&set, Some(2)).min_samples_leaf(), 2);
+}
+
+#[test]
+fn an_automatic_forest_grows_more_trees_where_its_leaves_hold_several_samples() {
+    use shapeforest::forest::{AUTO_TREES_MIXED, AUTO_TREES_PURE};
+    let f = family(6);
+    let n = f.base.n_vertices();
+    // Six complete shapes: pure leaves, the paper's 15 trees (resolved before fitting, as a
+    // progress bar reads it, and stored by the fit).
+    let complete = set_of(&f, &[0, 1, 2, 3, 4, 5]);
+    let auto = RandomForest::params().seed(1).check().unwrap();
+    assert_eq!(auto.n_trees(), 0);
+    assert_eq!(auto.resolved_for(&complete).n_trees(), AUTO_TREES_PURE);
+    assert_eq!(AUTO_TREES_PURE, 15);
+    // Thirty copies (five of each shape): 30 examples of each label, leaves of 4, whose
+    // posteriors mix neighbouring labels, so more trees.
+    let copies: Vec<TrainingShape> = (0..30)
+        .map(|i| TrainingShape::new(format!("copy{i}"), f.spectra[i % 6].clone(), labels_identity(n)))
+        .collect();
+    let mixed = TrainingSet::new(copies, n).unwrap();
+    let resolved = auto.resolved_for(&mixed);
+    assert_eq!((resolved.min_samples_leaf(), resolved.n_trees()), (4, AUTO_TREES_MIXED));
+    let forest = RandomForest::params().seed(1).max_depth(6).fit(&mixed).unwrap();
+    assert_eq!(forest.n_trees(), AUTO_TREES_MIXED);
+    // Pure leaves asked for on the same set: 15; a number given is kept.
+    let pure = RandomForest::params().min_samples_leaf(1).check().unwrap().resolved_for(&mixed);
+    assert_eq!(pure.n_trees(), AUTO_TREES_PURE);
+    let fixed = RandomForest::params().n_trees(3).check().unwrap().resolved_for(&mixed);
+    assert_eq!(fixed.n_trees(), 3);
 }

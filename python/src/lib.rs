@@ -466,19 +466,21 @@ impl PyForest {
     /// prepared as a scan is, so the forest learns partial scans (as `shapeforest train
     /// --augment`). `local_descriptors=True` lets the forest split on local histograms of the
     /// surface too (as `shapeforest train --local-descriptors`; for partial scans).
+    /// `n_trees`: default `None`, 15 where the leaves are pure and 60 where they hold several
+    /// samples (with `augment` copies), as `shapeforest train --trees auto`.
     /// `min_samples_leaf`: the smallest leaf a split may leave, in training samples (default
     /// `None`: an eighth of the training set's samples per label, at least 1, as `shapeforest
     /// train --min-leaf auto`; 1: pure leaves).
     /// `progress=True` reports spectra, copies and trees on stderr; a callable gets
     /// `(stage, done, total)`.
     #[staticmethod]
-    #[pyo3(signature = (meshes, labels = None, *, n_trees = 15, max_depth = 25, k = 100, seed = 0, augment = Vec::new(), augment_copies = 15, local_descriptors = false, min_samples_leaf = None, progress = None))]
+    #[pyo3(signature = (meshes, labels = None, *, n_trees = None, max_depth = 25, k = 100, seed = 0, augment = Vec::new(), augment_copies = 15, local_descriptors = false, min_samples_leaf = None, progress = None))]
     #[allow(clippy::too_many_arguments)]
     fn train(
         py: Python<'_>,
         meshes: Vec<PyMesh>,
         labels: Option<Vec<Bound<'_, PyAny>>>,
-        n_trees: usize,
+        n_trees: Option<usize>,
         max_depth: usize,
         k: usize,
         seed: u64,
@@ -489,6 +491,9 @@ impl PyForest {
         progress: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let local = local_descriptors.then(LocalParams::default);
+        if n_trees == Some(0) {
+            return Err(sf_err("n_trees = 0: at least 1 tree (None: chosen from the training set)"));
+        }
         if min_samples_leaf == Some(0) {
             return Err(sf_err(
                 "min_samples_leaf = 0: at least 1 sample (None: chosen from the training set)",
@@ -533,7 +538,7 @@ impl PyForest {
             ),
         };
         let params = RandomForest::params()
-            .n_trees(n_trees)
+            .n_trees(n_trees.unwrap_or(0))
             .max_depth(max_depth)
             .min_samples_leaf(min_samples_leaf.unwrap_or(0))
             .seed(seed);
@@ -631,6 +636,8 @@ impl PyForest {
                 }
             };
             let set = set.map_err(|e| e.to_string())?;
+            let valid = valid.resolved_for(&set);
+            let n_trees = valid.n_trees();
             let trees = AtomicUsize::new(0);
             progress.report("trees", 0, n_trees);
             let on_tree =

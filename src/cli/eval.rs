@@ -86,8 +86,10 @@ pub struct EvalArgs {
     /// Seed of every random choice.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Trees per forest.
-    #[arg(long, default_value_t = 15)]
+    /// Trees per forest (`train --trees`): `auto` (default) 15 where the leaves are pure, 60
+    /// where they hold several samples (a training set with --augment copies; README "More
+    /// trees for views"), or a number.
+    #[arg(long, default_value = "auto", value_name = "N|auto", value_parser = parse_trees)]
     pub trees: usize,
     /// Split candidates per node.
     #[arg(long, default_value_t = 20)]
@@ -238,6 +240,11 @@ pub struct EvalArgs {
     /// "The forest's word in a view's placement").
     #[arg(long, default_value_t = shapeforest::regularizer::AnchorGrowthParams::default().part_prior, value_name = "W", value_parser = parse_part_prior)]
     pub part_prior: f64,
+    /// On a single-view scan, each vertex's most probable posterior entries tried in anchor
+    /// growth's placements (`AnchorGrowthParams::part_candidates`; 0: all; README "More trees
+    /// for views").
+    #[arg(long, default_value_t = shapeforest::regularizer::AnchorGrowthParams::default().part_candidates, value_name = "N")]
+    pub part_candidates: usize,
     /// On a single-view scan play the game among the --part-game-candidates only, without the
     /// second game among 5 whose completed map is kept when the forest's posterior supports it
     /// better (`RegularizerParams::part_alternative`).
@@ -353,6 +360,7 @@ impl EvalArgs {
             part_alternative: !self.no_part_alternative,
             growth: Some(shapeforest::regularizer::AnchorGrowthParams {
                 part_prior: self.part_prior,
+                part_candidates: self.part_candidates,
                 ..Default::default()
             }),
             n_samples: self.game_samples as usize,
@@ -388,6 +396,26 @@ pub(super) fn parse_min_leaf(text: &str) -> Result<usize, String> {
             Ok(n) if n >= 1 => Ok(n),
             _ => Err(format!("expected `auto` or a number of samples of at least 1, got {text:?}")),
         },
+    }
+}
+
+/// `--trees`: `auto` (0, resolved from the training set) or a number of trees ≥ 1.
+pub(super) fn parse_trees(text: &str) -> Result<usize, String> {
+    match text.trim() {
+        "auto" => Ok(0),
+        t => match t.parse::<usize>() {
+            Ok(n) if n >= 1 => Ok(n),
+            _ => Err(format!("expected `auto` or a number of trees of at least 1, got {text:?}")),
+        },
+    }
+}
+
+/// `--trees` as given: `auto` for 0.
+pub(super) fn trees_text(trees: usize) -> String {
+    if trees == 0 {
+        "auto".into()
+    } else {
+        trees.to_string()
     }
 }
 
@@ -894,7 +922,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         class.shapes.len(),
         args.train.min(class.shapes.len() - 1),
         if args.train_once { " (one training set)" } else { " per test" },
-        args.trees,
+        trees_text(args.trees),
         args.eval_points.min(n_labels)
     );
     if class.symmetry.is_none() {
@@ -945,10 +973,16 @@ pub fn run(args: EvalArgs) -> Result<()> {
     leaves.sort_unstable();
     leaves.dedup();
     let leaves: Vec<String> = leaves.iter().map(|l| l.to_string()).collect();
+    let mut trees: Vec<usize> = report.tests.iter().map(|t| t.n_trees).collect();
+    trees.sort_unstable();
+    trees.dedup();
+    let trees: Vec<String> = trees.iter().map(|t| t.to_string()).collect();
     println!(
-        "forest leaves of at least {} training sample(s){}",
+        "forest leaves of at least {} training sample(s){}; {} trees{}",
         leaves.join(", "),
-        if args.min_leaf == 0 { " (--min-leaf auto: an eighth of the samples per label)" } else { "" }
+        if args.min_leaf == 0 { " (--min-leaf auto: an eighth of the samples per label)" } else { "" },
+        trees.join(", "),
+        if args.trees == 0 { " (--trees auto: 15 with pure leaves, 60 with larger ones)" } else { "" }
     );
     let alternatives = report.tests.iter().filter(|t| t.alternative_kept).count();
     if alternatives > 0 {

@@ -123,7 +123,7 @@ pub fn run(
         "{title}: pairwise protocol, {} pairs; training on {} ({} trees), reference {}; {} points per pair",
         pairs.len(),
         names(&training),
-        args.trees,
+        super::eval::trees_text(args.trees),
         shapes[training[0]].name,
         shapes[0].truth.len()
     );

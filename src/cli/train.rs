@@ -78,8 +78,10 @@ pub struct TrainArgs {
     /// Eigenpairs per shape (K).
     #[arg(short, long, default_value_t = 100)]
     pub k: usize,
-    /// Number of trees.
-    #[arg(long, default_value_t = 15)]
+    /// Number of trees: `auto` (default) 15 where the leaves are pure (complete shapes), 60
+    /// where they hold several samples (with --augment copies; README "More trees for views"),
+    /// or a number.
+    #[arg(long, default_value = "auto", value_name = "N|auto", value_parser = super::eval::parse_trees)]
     pub trees: usize,
     /// Maximum tree depth.
     #[arg(long, default_value_t = 25)]
@@ -404,7 +406,8 @@ pub fn run(args: TrainArgs) -> Result<()> {
         );
     }
     let t0 = Instant::now();
-    let bar = Arc::new(progress(args.trees as u64, "trees"));
+    let params = params.resolved_for(&set);
+    let bar = Arc::new(progress(params.n_trees() as u64, "trees"));
     let b = bar.clone();
     let (n_shapes, n_samples) = (set.shapes().len(), set.n_samples());
     // By value: the training spectra are freed once the trees' descriptor tables are built.

@@ -348,6 +348,9 @@ pub struct TestResult {
     /// [`crate::forest::RandomForestValidParams::resolved_for`]).
     #[serde(default)]
     pub min_samples_leaf: usize,
+    /// The number of trees of the test's forest (resolved when automatic).
+    #[serde(default)]
+    pub n_trees: usize,
     /// Orientation score of the regularised forest's matches (positive: not mirrored).
     pub orientation_score: f64,
     /// Number of sparse matches chosen by the regulariser on the forest posterior.
@@ -960,6 +963,7 @@ pub fn run_protocol(
             forest_reused,
             mean_support: prediction.mean_support(),
             min_samples_leaf: forest.min_samples_leaf(),
+            n_trees: forest.n_trees(),
             orientation_score: dense.orientation_score,
             n_matches: dense.matches.len(),
             methods,

@@ -77,7 +77,9 @@ pub use augment::{augmented_copies, augmented_shape, Augmentation};
 pub use io::{fnv1a64, ModelHeader, MODEL_FORMAT_VERSION, MODEL_MAGIC};
 pub use knn::WksKnn;
 pub use model::{ForestDescriptor, RandomForest};
-pub use params::{RandomForestParams, RandomForestValidParams, AUTO_LEAF_SHARE};
+pub use params::{
+    RandomForestParams, RandomForestValidParams, AUTO_LEAF_SHARE, AUTO_TREES_MIXED, AUTO_TREES_PURE,
+};
 pub use prediction::{hit_ratio, Prediction};
 pub use reference::{read_per_label_rows, reference_table, LabelTable, ModelReference};
 pub use training::{

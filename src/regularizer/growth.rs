@@ -110,24 +110,37 @@ struct GrowthSetup<'a> {
 }
 
 /// The placement cost of every posterior entry, `weight · min(−ln(p / p_max), cap)` per test
-/// vertex in the posterior's order (see [`AnchorGrowthParams::part_prior`]). It depends on the
-/// probabilities alone, not on the reference vertices the labels are read as, so one table
+/// vertex in the posterior's order (see [`AnchorGrowthParams::part_prior`]); unless
+/// `candidates` is 0, the entries beyond a vertex's `candidates` most probable (ties in the
+/// posterior's order) cost `f32::INFINITY` and are not tried
+/// ([`AnchorGrowthParams::part_candidates`]). It depends on
+/// the probabilities alone, not on the reference vertices the labels are read as, so one table
 /// serves the growth of both games' maps, both runs and every round.
-pub(super) fn prior_costs(prediction: &Prediction, weight: f64) -> Vec<Vec<f32>> {
+pub(super) fn prior_costs(prediction: &Prediction, weight: f64, candidates: usize) -> Vec<Vec<f32>> {
     use rayon::prelude::*;
     (0..prediction.n_vertices())
         .into_par_iter()
         .map(|m| {
             let (_, probs) = prediction.posterior(m);
             let top = probs.iter().fold(0f64, |t, &q| t.max(q as f64));
-            probs
+            let mut costs: Vec<f32> = probs
                 .iter()
                 .map(|&q| {
                     let surprise =
                         (-(q as f64 / top).max(f64::MIN_POSITIVE).ln()).min(AnchorGrowthParams::PRIOR_CAP);
                     (weight * surprise) as f32
                 })
-                .collect()
+                .collect();
+            if candidates > 0 && probs.len() > candidates {
+                let mut order: Vec<u32> = (0..probs.len() as u32).collect();
+                order.select_nth_unstable_by(candidates, |&a, &b| {
+                    probs[b as usize].total_cmp(&probs[a as usize]).then(a.cmp(&b))
+                });
+                for &i in &order[candidates..] {
+                    costs[i as usize] = f32::INFINITY;
+                }
+            }
+            costs
         })
         .collect()
 }
@@ -259,7 +272,13 @@ fn grow_rounds(
                 match prior {
                     Some(costs) => {
                         let mut entry = costs[m].iter();
-                        posterior.for_each_entry(m, &mut |r, _| consider(r, *entry.next().unwrap_or(&0.0)));
+                        posterior.for_each_entry(m, &mut |r, _| {
+                            let cost = *entry.next().unwrap_or(&0.0);
+                            // Beyond the vertex's most probable entries: not a candidate.
+                            if cost.is_finite() {
+                                consider(r, cost);
+                            }
+                        });
                     }
                     None => posterior.for_each_entry(m, &mut |r, _| consider(r, 0.0)),
                 }
@@ -332,7 +351,31 @@ fn weighted_l1_impl(x: &[f32], w: &[f32], y: &[f32]) -> f32 {
 
 #[cfg(test)]
 mod tests {
-    use super::{weighted_l1, weighted_l1_impl};
+    use super::{prior_costs, weighted_l1, weighted_l1_impl};
+    use crate::forest::Prediction;
+
+    #[test]
+    fn a_views_placements_try_only_each_vertexs_most_probable_entries() {
+        // Vertex 0: five entries; vertex 1: two (fewer than the cap, all tried).
+        let p = Prediction::from_parts(
+            6,
+            vec![0, 5, 7],
+            vec![0, 1, 2, 3, 4, 1, 5],
+            vec![0.1, 0.4, 0.2, 0.05, 0.25, 0.5, 0.5],
+        )
+        .unwrap();
+        let capped = prior_costs(&p, 0.02, 3);
+        // The three most probable (0.4, 0.25, 0.2) are tried; the most probable costs nothing.
+        let tried: Vec<bool> = capped[0].iter().map(|c| c.is_finite()).collect();
+        assert_eq!(tried, vec![false, true, true, false, true]);
+        assert_eq!(capped[0][1], 0.0);
+        assert!((capped[0][2] - (0.02 * 2f64.ln()) as f32).abs() < 1e-7, "{:?}", capped[0]);
+        assert_eq!(capped[1], vec![0.0, 0.0]);
+        // No cap: every entry is tried, with the same costs.
+        let all = prior_costs(&p, 0.02, 0);
+        assert!(all.iter().flatten().all(|c| c.is_finite()));
+        assert_eq!(all[0][1..3], capped[0][1..3]);
+    }
 
     #[test]
     fn lane_sums_equal_the_plain_sum() {

@@ -459,6 +459,13 @@ pub struct AnchorGrowthParams {
     /// FAUST_r scans 2.6 points). Default 0.02.
     #[serde(default = "AnchorGrowthParams::default_part_prior")]
     pub part_prior: f64,
+    /// On a single view: only each vertex's this many most probable posterior entries are tried
+    /// in a placement (0: all). A forest of many trees with leaves of several samples (60 trees,
+    /// [`crate::forest::AUTO_TREES_MIXED`]) gives a view's vertices ~500 entries, most of them
+    /// improbable, and a placement's time grows with them; the 160 most probable keep the
+    /// maps nearly as they were (README "More trees for views"). Default 160.
+    #[serde(default = "AnchorGrowthParams::default_part_candidates")]
+    pub part_candidates: usize,
 }
 
 impl AnchorGrowthParams {
@@ -469,6 +476,10 @@ impl AnchorGrowthParams {
 
     fn default_part_prior() -> f64 {
         0.02
+    }
+
+    fn default_part_candidates() -> usize {
+        160
     }
 }
 
@@ -484,6 +495,7 @@ impl Default for AnchorGrowthParams {
             orientation: 0.01,
             reorient: 1.0,
             part_prior: Self::default_part_prior(),
+            part_candidates: Self::default_part_candidates(),
         }
     }
 }
@@ -1015,12 +1027,13 @@ pub fn dense_map(
     sparse: &SparseMatches,
     params: &RegularizerParams,
 ) -> Result<DenseMap, Error> {
-    // The prior's costs of a single view's placements, shared by both games' growths.
+    // The prior's costs of a single view's placements (and the entries not tried), shared by
+    // both games' growths.
     let prior = params
         .growth
         .as_ref()
-        .filter(|g| g.part_prior > 0.0 && partial::is_small_part(test, reference))
-        .map(|g| growth::prior_costs(prediction, g.part_prior));
+        .filter(|g| (g.part_prior > 0.0 || g.part_candidates > 0) && partial::is_small_part(test, reference))
+        .map(|g| growth::prior_costs(prediction, g.part_prior, g.part_candidates));
     let prior = prior.as_deref();
     let first = dense_of_equilibrium(test, reference, prediction, label_to_vertex, sparse, params, prior)?;
     let Some(alternative) = sparse.alternative.as_deref() else { return Ok(first) };

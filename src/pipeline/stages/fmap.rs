@@ -76,6 +76,10 @@ pub struct FmapConfig {
     /// (`AnchorGrowthParams::part_prior`; 0: off). Default 0.02.
     #[serde(default = "default_growth_part_prior")]
     pub growth_part_prior: f64,
+    /// Anchor growth on a single-view scan: each vertex's most probable posterior entries tried
+    /// in a placement (`AnchorGrowthParams::part_candidates`; 0: all). Default 160.
+    #[serde(default = "default_growth_part_candidates")]
+    pub growth_part_candidates: usize,
 }
 
 fn default_growth_samples() -> usize {
@@ -102,6 +106,9 @@ fn default_growth_reorient() -> f64 {
 fn default_growth_part_prior() -> f64 {
     AnchorGrowthParams::default().part_prior
 }
+fn default_growth_part_candidates() -> usize {
+    AnchorGrowthParams::default().part_candidates
+}
 
 fn default_basis() -> usize {
     40
@@ -125,6 +132,7 @@ impl Default for FmapConfig {
             growth_orientation: default_growth_orientation(),
             growth_reorient: default_growth_reorient(),
             growth_part_prior: default_growth_part_prior(),
+            growth_part_candidates: default_growth_part_candidates(),
         }
     }
 }

@@ -109,6 +109,7 @@ pub fn regularizer_params(m: &MatcherConfig, f: &FmapConfig) -> RegularizerParam
         orientation: f.growth_orientation,
         reorient: f.growth_reorient,
         part_prior: f.growth_part_prior,
+        part_candidates: f.growth_part_candidates,
         ..Default::default()
     });
     p

@@ -85,8 +85,9 @@ pub struct TrainerConfig {
     /// When to update. Default `incremental`.
     #[serde(default)]
     pub mode: TrainMode,
-    /// Trees in the forest. Default 15.
-    #[serde(default = "default_trees")]
+    /// Trees in the forest. Default 0: automatic, 15 where the leaves are pure and 60 where
+    /// they hold several samples (with `augment` copies; [`RandomForestValidParams::resolved_for`]).
+    #[serde(default)]
     pub trees: usize,
     /// New trees per incremental update (the oldest are retired). Default 5.
     #[serde(default = "default_per_update")]
@@ -144,9 +145,6 @@ fn default_quiet() -> u64 {
     2000
 }
 
-fn default_trees() -> usize {
-    15
-}
 fn default_per_update() -> usize {
     5
 }
@@ -164,7 +162,7 @@ impl Default for TrainerConfig {
     fn default() -> Self {
         Self {
             mode: TrainMode::Incremental,
-            trees: default_trees(),
+            trees: 0,
             trees_per_update: default_per_update(),
             max_depth: default_depth(),
             min_samples_leaf: 0,
