@@ -189,6 +189,17 @@ fn a_model_with_local_histograms_is_trained_written_as_version_4_and_matches_a_s
         !bad.status.success() && bad_err.contains("expected `auto` or a number of samples of at least 1"),
         "{bad_err}"
     );
+    // Nor is a forest of 0 trees (`auto` chooses the number).
+    let bad = bin()
+        .args(["train", "--synthetic", "--trees", "0", "--out"])
+        .arg(dir.path().join("x.sfm"))
+        .output()
+        .unwrap();
+    let bad_err = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        !bad.status.success() && bad_err.contains("expected `auto` or a number of trees of at least 1"),
+        "{bad_err}"
+    );
     // A negative weight of the forest's word in a view's placement is refused by name.
     let bad = bin()
         .args(["eval", "--synthetic", "--part-prior=-1", "--out"])

@@ -388,26 +388,26 @@ pub(super) fn parse_augment(text: &str) -> Result<Perturbation, String> {
     Perturbation::parse_kind(text)
 }
 
-/// `--min-leaf`: `auto` (0, resolved from the training set) or a number of samples ≥ 1.
-pub(super) fn parse_min_leaf(text: &str) -> Result<usize, String> {
+/// `auto` (0: resolved from the training set) or a count of at least 1 (`what`: of what, for
+/// the message); the rule of `--min-leaf` and `--trees`.
+fn parse_auto_count(text: &str, what: &str) -> Result<usize, String> {
     match text.trim() {
         "auto" => Ok(0),
         t => match t.parse::<usize>() {
             Ok(n) if n >= 1 => Ok(n),
-            _ => Err(format!("expected `auto` or a number of samples of at least 1, got {text:?}")),
+            _ => Err(format!("expected `auto` or a number of {what} of at least 1, got {text:?}")),
         },
     }
 }
 
+/// `--min-leaf`: `auto` (0, resolved from the training set) or a number of samples ≥ 1.
+pub(super) fn parse_min_leaf(text: &str) -> Result<usize, String> {
+    parse_auto_count(text, "samples")
+}
+
 /// `--trees`: `auto` (0, resolved from the training set) or a number of trees ≥ 1.
 pub(super) fn parse_trees(text: &str) -> Result<usize, String> {
-    match text.trim() {
-        "auto" => Ok(0),
-        t => match t.parse::<usize>() {
-            Ok(n) if n >= 1 => Ok(n),
-            _ => Err(format!("expected `auto` or a number of trees of at least 1, got {text:?}")),
-        },
-    }
+    parse_auto_count(text, "trees")
 }
 
 /// `--trees` as given: `auto` for 0.

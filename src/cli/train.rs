@@ -415,9 +415,10 @@ pub fn run(args: TrainArgs) -> Result<()> {
     bar.finish_and_clear();
     let forest = forest.with_reference(reference)?;
     eprintln!(
-        "{} trees on {} shapes ({} samples, {} labels) in {:.1} s; leaves of at least {} sample(s){}, mean leaf \
-         support {:.2}{}",
+        "{} trees{} on {} shapes ({} samples, {} labels) in {:.1} s; leaves of at least {} sample(s){}, mean \
+         leaf support {:.2}{}",
         forest.n_trees(),
+        if args.trees == 0 { " (auto)" } else { "" },
         n_shapes,
         n_samples,
         n_labels,
