@@ -179,38 +179,25 @@ fn a_model_with_local_histograms_is_trained_written_as_version_4_and_matches_a_s
     assert!(err.contains("splits on local histograms"), "{err}");
     // The smallest leaf was chosen from the training set, and a leaf of 0 samples is refused.
     assert!(err.contains("sample(s) (auto)"), "{err}");
-    let bad = bin()
-        .args(["train", "--synthetic", "--min-leaf", "0", "--out"])
-        .arg(dir.path().join("x.sfm"))
-        .output()
-        .unwrap();
-    let bad_err = String::from_utf8_lossy(&bad.stderr);
-    assert!(
-        !bad.status.success() && bad_err.contains("expected `auto` or a number of samples of at least 1"),
-        "{bad_err}"
+    // A command line refused: it fails, and its message holds every one of `needles`.
+    let refused = |args: &[&str], out: &str, needles: &[&str]| {
+        let bad = bin().args(args).arg("--out").arg(dir.path().join(out)).output().unwrap();
+        let bad_err = String::from_utf8_lossy(&bad.stderr);
+        assert!(!bad.status.success() && needles.iter().all(|n| bad_err.contains(n)), "{bad_err}");
+    };
+    refused(
+        &["train", "--synthetic", "--min-leaf", "0"],
+        "x.sfm",
+        &["expected `auto` or a number of samples of at least 1"],
     );
     // Nor is a forest of 0 trees (`auto` chooses the number).
-    let bad = bin()
-        .args(["train", "--synthetic", "--trees", "0", "--out"])
-        .arg(dir.path().join("x.sfm"))
-        .output()
-        .unwrap();
-    let bad_err = String::from_utf8_lossy(&bad.stderr);
-    assert!(
-        !bad.status.success() && bad_err.contains("expected `auto` or a number of trees of at least 1"),
-        "{bad_err}"
+    refused(
+        &["train", "--synthetic", "--trees", "0"],
+        "x.sfm",
+        &["expected `auto` or a number of trees of at least 1"],
     );
     // A negative weight of the forest's word in a view's placement is refused by name.
-    let bad = bin()
-        .args(["eval", "--synthetic", "--part-prior=-1", "--out"])
-        .arg(dir.path().join("e"))
-        .output()
-        .unwrap();
-    let bad_err = String::from_utf8_lossy(&bad.stderr);
-    assert!(
-        !bad.status.success() && bad_err.contains("--part-prior") && bad_err.contains("a finite weight ≥ 0"),
-        "{bad_err}"
-    );
+    refused(&["eval", "--synthetic", "--part-prior=-1"], "e", &["--part-prior", "a finite weight ≥ 0"]);
     let bytes = std::fs::read(&model).unwrap();
     assert_eq!(u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]), 4, "format version");
 

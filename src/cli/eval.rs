@@ -30,8 +30,8 @@ use shapeforest::{
     eval::{
         plot_curves_svg,
         protocol::{
-            run_protocol, Method, ProtocolEvent, ProtocolParams, ProtocolReport, ProtocolShape, TestTimings,
-            DOUBT_REVERSED_AREA,
+            run_protocol, Method, ProtocolEvent, ProtocolParams, ProtocolReport, ProtocolShape, TestResult,
+            TestTimings, DOUBT_REVERSED_AREA,
         },
         symmetry::{
             label_symmetry_from_mirrored_truth, MirroredTruth, SymmetricFeatures, SymmetryParams,
@@ -969,19 +969,18 @@ pub fn run(args: EvalArgs) -> Result<()> {
             mirrored.join(", ")
         );
     }
-    let mut leaves: Vec<usize> = report.tests.iter().map(|t| t.min_samples_leaf).collect();
-    leaves.sort_unstable();
-    leaves.dedup();
-    let leaves: Vec<String> = leaves.iter().map(|l| l.to_string()).collect();
-    let mut trees: Vec<usize> = report.tests.iter().map(|t| t.n_trees).collect();
-    trees.sort_unstable();
-    trees.dedup();
-    let trees: Vec<String> = trees.iter().map(|t| t.to_string()).collect();
+    // The distinct values the tests' forests had, ascending.
+    let distinct = |of: fn(&TestResult) -> usize| {
+        let mut v: Vec<usize> = report.tests.iter().map(of).collect();
+        v.sort_unstable();
+        v.dedup();
+        v.iter().map(|x| x.to_string()).collect::<Vec<_>>().join(", ")
+    };
     println!(
         "forest leaves of at least {} training sample(s){}; {} trees{}",
-        leaves.join(", "),
+        distinct(|t| t.min_samples_leaf),
         if args.min_leaf == 0 { " (--min-leaf auto: an eighth of the samples per label)" } else { "" },
-        trees.join(", "),
+        distinct(|t| t.n_trees),
         if args.trees == 0 { " (--trees auto: 15 with pure leaves, 60 with larger ones)" } else { "" }
     );
     let alternatives = report.tests.iter().filter(|t| t.alternative_kept).count();

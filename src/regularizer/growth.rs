@@ -104,8 +104,8 @@ struct GrowthSetup<'a> {
     boundary: Option<Vec<f64>>,
     /// Reference vertices tried for every test vertex besides its forest candidates.
     extra: Vec<usize>,
-    /// On a single view, each posterior entry's cost in a placement ([`prior_costs`]); `None`
-    /// elsewhere.
+    /// On a single view, each posterior entry's cost in a placement ([`prior_costs`]; ∞: not
+    /// tried); `None` elsewhere.
     prior: Option<&'a [Vec<f32>]>,
 }
 
