@@ -386,6 +386,61 @@ fn local_histograms_match_single_views_of_the_synthetic_family() {
 }
 
 #[test]
+fn a_doubted_view_is_regularised_onto_the_next_poses_and_keeps_the_best_oriented_map() {
+    let view = vec![Perturbation::PARTIAL_VIEW];
+    let (shapes, symmetry) = shapes_and_symmetry(3000, 7);
+    let params = |doubt_view: Option<f64>| ProtocolParams {
+        n_train: 5,
+        max_tests: Some(2),
+        train_once: true,
+        eval_points: 500,
+        forest: RandomForest::params().n_trees(10).seed(1),
+        perturbations: view.clone(),
+        skip_baseline: true,
+        augment: vec![view.clone()],
+        augment_copies: 3,
+        doubt_view,
+        ..ProtocolParams::default()
+    };
+    let run =
+        |doubt_view| run_protocol(&shapes, Some(&symmetry), &params(doubt_view), None).expect("protocol");
+    // Off by default; on, a threshold above every score doubts every view.
+    assert_eq!(ProtocolParams::default().doubt_view, None);
+    let (never, always) = (run(None), run(Some(1.0)));
+    let mut doubted = 0;
+    for (t, one) in always.tests.iter().zip(&never.tests) {
+        assert!(one.tried.is_empty(), "view {}: tried other poses without doubt", one.test);
+        let score = one.view_orientation.expect("a single view's map is read");
+        assert!(score > 0.0 && score < 1.0, "view {}: orientation {score}", one.test);
+        assert_eq!(t.view_orientation, one.view_orientation, "view {}: the first map is the same", one.test);
+        // Three poses in all: the nearest, and two other training shapes (never the test).
+        let nearest = one.relay.unwrap_or(one.reference);
+        let kept = t.relay.unwrap_or(t.reference);
+        let mut poses: Vec<usize> = t.tried.iter().copied().chain([kept]).collect();
+        poses.sort_unstable();
+        poses.dedup();
+        assert_eq!(poses.len(), 3, "view {}: kept {kept}, tried {:?}", t.test, t.tried);
+        assert!(poses.contains(&nearest) && poses.iter().all(|p| t.training.contains(p) && *p != t.test));
+        doubted += 1;
+        // The nearest pose's map is kept unless another reads better oriented: then the same map.
+        let map =
+            |r: &ProtocolReport, i: usize| r.tests[i].errors(Method::ForestRegularized).unwrap().map.clone();
+        let i = always.tests.iter().position(|x| x.test == t.test).unwrap();
+        if kept == nearest {
+            assert!(
+                map(&always, i) == map(&never, i),
+                "view {}: kept the nearest pose's map, changed",
+                t.test
+            );
+        }
+    }
+    assert!(doubted > 0);
+    let (a, n) = (within_005(&always), within_005(&never));
+    println!("single views, doubting every one: {n:.3} -> {a:.3}");
+    assert!(a >= n - 0.02, "keeping the best oriented map lost accuracy: {n} -> {a}");
+}
+
+#[test]
 fn single_views_gain_from_leaves_of_several_vertices_and_more_game_candidates() {
     let view = vec![Perturbation::PARTIAL_VIEW];
     let (shapes, symmetry) = shapes_and_symmetry(3000, 7);

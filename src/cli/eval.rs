@@ -223,6 +223,12 @@ pub struct EvalArgs {
     /// nearest poses (`ProtocolParams::doubt`; 0: never).
     #[arg(long, default_value_t = DOUBT_REVERSED_AREA, value_name = "F", value_parser = parse_share)]
     pub doubt_votes: f64,
+    /// With one vote, on a single view: a map whose orientation score reads below this
+    /// (results.csv: view_orientation) is doubted: the view is regularised onto the next two
+    /// nearest poses too and the best oriented map kept (results.csv: tried_poses;
+    /// `ProtocolParams::doubt_view`; README "Doubted views", which measures 0.3; default 0: never).
+    #[arg(long, default_value_t = 0.0, value_name = "S", value_parser = parse_share)]
+    pub doubt_view: f64,
     /// Anchor growth weighs each (vertex, anchor) distance by how far it can be from the
     /// scan's boundary (see `regularizer::pair_trust`).
     #[arg(long)]
@@ -904,6 +910,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         relay: !args.no_relay,
         relay_votes: args.relay_votes,
         doubt: (args.doubt_votes > 0.0).then_some(args.doubt_votes),
+        doubt_view: (args.doubt_view > 0.0).then_some(args.doubt_view),
         ..ProtocolParams::default()
     };
     let n_labels = class.shapes[0].truth.len();
@@ -1199,7 +1206,7 @@ fn write_point_errors(out: &Path, report: &ProtocolReport) -> Result<()> {
 
 fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usize) -> Result<()> {
     let mut csv = String::from(
-        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation,regularised_onto,voted_with,reversed_area,prediction_mirrored,alternative_kept,part_n,part_within_005,part_sym_within_005\n",
+        "test,reference,method,n,within_005,within_010,mean,median,sym_within_005,sym_within_010,sym_mean,sym_median,perturbation,scan_vertices,area_fraction,map_orientation,regularised_onto,voted_with,reversed_area,prediction_mirrored,alternative_kept,part_n,part_within_005,part_sym_within_005,view_orientation,tried_poses\n",
     );
     for t in &report.tests {
         let scan = t.scan.as_deref().unwrap_or(&class.shapes[t.test].mesh);
@@ -1219,7 +1226,7 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
             let part_sym = m.symmetric.as_deref().map(in_part);
             let _ = writeln!(
                 csv,
-                "{},{},{},{},{},{},{},{},{:.6},{:.4},{},{},{},{},{},{},{:.6},{}",
+                "{},{},{},{},{},{},{},{},{:.6},{:.4},{},{},{},{},{},{},{:.6},{},{},{}",
                 report.shape_names[t.test],
                 report.shape_names[t.reference],
                 m.method.name(),
@@ -1238,6 +1245,8 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
                 part.n,
                 part.within_005,
                 part_sym.map_or(String::new(), |y| format!("{:.6}", y.within_005)),
+                t.view_orientation.map_or(String::new(), |o| format!("{o:.4}")),
+                t.tried.iter().map(|&v| report.shape_names[v].as_str()).collect::<Vec<_>>().join(" "),
             );
         }
     }

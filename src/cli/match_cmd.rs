@@ -32,8 +32,8 @@ use shapeforest::{
     },
     mesh::{coordinate_colors, read_mesh, write_colored_ply, Mesh},
     regularizer::{
-        poses_by_nearness, regularize, regularize_pair, reversed_area, through_labels, DenseMap, PairParams,
-        PreparedShape, RegularizerParams, ScanPart, UNFLIP_THRESHOLD,
+        poses_by_nearness, regularize, regularize_pair, reversed_area, through_labels, view_orientation,
+        DenseMap, PairParams, PreparedShape, RegularizerParams, ScanPart, UNFLIP_THRESHOLD,
     },
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
@@ -105,6 +105,12 @@ pub struct MatchArgs {
     /// the next two nearest poses (0: never).
     #[arg(long, default_value_t = shapeforest::eval::protocol::DOUBT_REVERSED_AREA, value_name = "F", value_parser = super::eval::parse_share)]
     pub doubt_votes: f64,
+    /// With --relay and one vote, on a single view: a map whose orientation score reads below
+    /// this (the report's `view_orientation`) is doubted: the view is regularised onto the next
+    /// two nearest poses too and the best oriented map kept (the report's `tried_poses`; README
+    /// "Doubted views", which measures 0.3; default 0: never).
+    #[arg(long, default_value_t = 0.0, value_name = "S", value_parser = super::eval::parse_share)]
+    pub doubt_view: f64,
 }
 
 /// A training shape the scan may be regularised onto instead of the reference.
@@ -449,10 +455,14 @@ pub fn run(args: MatchArgs) -> Result<()> {
     // scan's area is voted with the maps onto the next nearest poses.
     let doubt =
         (args.relay_votes <= 1 && ranked.len() > 1 && args.doubt_votes > 0.0).then_some(args.doubt_votes);
+    // ... and a single view's map that reads poorly oriented is regularised onto them too, the
+    // best oriented map kept.
+    let doubt_view =
+        (args.relay_votes <= 1 && ranked.len() > 1 && args.doubt_view > 0.0).then_some(args.doubt_view);
     // A map carried from a relay or voted is settled onto the reference (`DenseMap::settled`),
     // which needs the reference prepared when it is not among the shapes regularised onto.
     let settles = args.to.is_none()
-        && (ontos.len() > 1 || ontos[0].is_some() || doubt.is_some())
+        && (ontos.len() > 1 || ontos[0].is_some() || doubt.is_some() || doubt_view.is_some())
         && reg.zoomout.is_some_and(|z| (z.settle.is_some() && z.extrinsic.is_some()) || z.rigid.is_some());
     // (Prepared as a shape to regularise onto, so that a doubted map whose voters include the
     // reference takes it instead of preparing it again.)
@@ -464,7 +474,9 @@ pub fn run(args: MatchArgs) -> Result<()> {
     } else {
         None
     };
-    let (mut reversed, mut doubt_prepare_s) = (None, 0.0);
+    let (mut reversed, mut view_score, mut doubt_prepare_s) = (None, None, 0.0);
+    // A doubted view: the index in `ontos` of the pose whose map was kept (the best oriented).
+    let mut chosen: Option<(usize, f64)> = None;
     let t0 = Instant::now();
     // With --to: the target scan's spectrum, prediction and preparation count in this stage.
     // `dense`: the regularisation the report's quality fields describe; `map`: the map written.
@@ -535,9 +547,22 @@ pub fn run(args: MatchArgs) -> Result<()> {
             let one_vote = onto_shapes.len() == 1;
             let (first, share) = onto_map(&onto_shapes[0], one_vote)?;
             reversed = share;
+            let mirrored = doubt.is_some_and(|limit| share.is_some_and(|r| r > limit));
+            // A single view's map onto the reference that reads poorly oriented: the view
+            // regularised onto the next nearest poses too, the best oriented map kept.
+            let mut poorly_oriented = false;
             let dense = if !one_vote {
                 vote(first, &onto_shapes, settle_reference.as_ref())?
-            } else if doubt.is_some_and(|limit| share.is_some_and(|r| r > limit)) {
+            } else if !mirrored {
+                let carried = onto_shapes[0].to_reference.is_some();
+                let dense = settle(first, &onto_shapes, settle_reference.as_ref(), carried)?;
+                view_score = view_orientation(&test.mesh, &reference, &dense.map);
+                poorly_oriented = doubt_view.is_some_and(|limit| view_score.is_some_and(|s| s < limit));
+                dense
+            } else {
+                first
+            };
+            let dense = if one_vote && (mirrored || poorly_oriented) {
                 // A map that reads as mirrored in part: voted with the next nearest poses'.
                 ontos = ranked.iter().take(DOUBT_VOTES).copied().collect();
                 let t1 = Instant::now();
@@ -554,20 +579,39 @@ pub fn run(args: MatchArgs) -> Result<()> {
                     onto_shapes.push(shape);
                 }
                 doubt_prepare_s = t1.elapsed().as_secs_f64();
-                vote(first, &onto_shapes, settle_reference.as_ref())?
+                if mirrored {
+                    vote(dense, &onto_shapes, settle_reference.as_ref())?
+                } else {
+                    let mut best = (view_score.unwrap_or(f64::NEG_INFINITY), dense, 0);
+                    for (i, onto) in onto_shapes.iter().enumerate().skip(1) {
+                        let (map, _) = onto_map(onto, false)?;
+                        let carried = onto.to_reference.is_some();
+                        let map = settle(map, &onto_shapes, settle_reference.as_ref(), carried)?;
+                        let s = view_orientation(&test.mesh, &reference, &map.map);
+                        if let Some(s) = s.filter(|&s| s > best.0) {
+                            best = (s, map, i);
+                        }
+                    }
+                    chosen = Some((best.2, best.0));
+                    best.1
+                }
             } else {
-                let carried = onto_shapes[0].to_reference.is_some();
-                settle(first, &onto_shapes, settle_reference.as_ref(), carried)?
+                dense
             };
             let map = part.extend(&scan, dense.map.clone());
             (dense, map, "the map onto the reference", None)
         }
     };
-    let onto_relay = ontos[0].map(|r| r.path.display().to_string());
-    let voted_with: Vec<String> = ontos[1..]
-        .iter()
-        .map(|o| o.map_or_else(|| args.reference.display().to_string(), |r| r.path.display().to_string()))
-        .collect();
+    let name_of = |o: &Option<&Relay>| {
+        o.map_or_else(|| args.reference.display().to_string(), |r| r.path.display().to_string())
+    };
+    let kept = chosen.map_or(0, |c| c.0);
+    let onto_relay = ontos[kept].map(|r| r.path.display().to_string());
+    // A doubted view's other poses were tried, not voted with.
+    let others: Vec<String> =
+        ontos.iter().enumerate().filter(|&(i, _)| i != kept).map(|(_, o)| name_of(o)).collect();
+    let (voted_with, tried): (Vec<String>, Vec<String>) =
+        if chosen.is_some() { (Vec::new(), others) } else { (others, Vec::new()) };
     // The relays a doubted map brought in count with the spectra and preparation.
     let regularize_s = t0.elapsed().as_secs_f64() - doubt_prepare_s;
 
@@ -610,7 +654,12 @@ pub fn run(args: MatchArgs) -> Result<()> {
         // the share of the scan's area where the map onto the nearest pose reads as mirrored
         // (one vote); above `--doubt-votes`, the map was voted with the next nearest poses'
         "reversed_area": reversed,
-        "doubted": reversed.is_some() && !voted_with.is_empty(),
+        "doubted": reversed.is_some() && (!voted_with.is_empty() || !tried.is_empty()),
+        // on a single view, the orientation score of the map onto the nearest pose (one vote);
+        // below `--doubt-view`, the view was regularised onto the next nearest poses too and the
+        // best oriented map kept (`regularised_onto_relay`; the others in `tried_poses`)
+        "view_orientation": view_score,
+        "tried_poses": tried,
         "components": part.components,
         "matched_part_vertices": part.mesh.n_vertices(),
         "normalising_area_ratio": scale_ratio,
@@ -657,8 +706,17 @@ pub fn run(args: MatchArgs) -> Result<()> {
          predict {predict_s:.2} s, regularise {regularize_s:.2} s; wrote {}",
         args.mesh.display(),
         onto_path.display(),
-        onto_relay.as_ref().map_or(String::new(), |r| format!(" (regularised onto {r}, the nearest pose)")),
+        onto_relay.as_ref().map_or(String::new(), |r| match chosen {
+            None => format!(" (regularised onto {r}, the nearest pose)"),
+            Some(_) => format!(" (regularised onto {r})"),
+        }),
         match (voted_with.is_empty(), reversed) {
+            (true, _) if !tried.is_empty() => format!(
+                " (its map, the best oriented of the view's maps onto {} poses: {:.3} against {:.3} onto the nearest)",
+                tried.len() + 1,
+                chosen.map_or(f64::NAN, |c| c.1),
+                view_score.unwrap_or(f64::NAN)
+            ),
             (true, _) => String::new(),
             (false, Some(share)) => format!(
                 " (voted with {}: {:.1} % of the area read as mirrored)",

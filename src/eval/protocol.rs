@@ -54,8 +54,8 @@ use crate::{
     geodesic::{HeatMethodSolver, HeatParams},
     mesh::{perturb, perturbations_name, Mesh, Perturbation},
     regularizer::{
-        poses_by_nearness, regularize, reversed_area, through_labels, DenseMap, PreparedShape,
-        RegularizerParams, ScanPart, UNFLIP_THRESHOLD,
+        poses_by_nearness, regularize, reversed_area, through_labels, view_orientation, DenseMap,
+        PreparedShape, RegularizerParams, ScanPart, UNFLIP_THRESHOLD,
     },
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
@@ -157,6 +157,13 @@ pub struct ProtocolParams {
     /// the maps onto the next nearest poses, [`DOUBT_VOTES`] in all. `None`: never. Default
     /// `Some(`[`DOUBT_REVERSED_AREA`]`)`.
     pub doubt: Option<f64>,
+    /// With `relay` and one vote, on a single view: a map whose orientation score reads below
+    /// this ([`crate::regularizer::view_orientation`]: a map that folds or mirrors much of the
+    /// view) is doubted too: the view is regularised onto the next nearest poses as well,
+    /// [`DOUBT_VOTES`] in all, and the best oriented of the maps kept. `None`: never (the
+    /// default: a doubted view costs three regularisations; README "Doubted views" measures
+    /// [`DOUBT_VIEW_ORIENTATION`]).
+    pub doubt_view: Option<f64>,
 }
 
 /// Maps voted on a doubted map ([`ProtocolParams::doubt`]), the doubted one included.
@@ -166,6 +173,11 @@ pub const DOUBT_VOTES: usize = 3;
 /// (good maps of the hi-res classes read 0–1.8 %, and most of those above 2 % are the worst of
 /// their class; README, "Relay votes").
 pub const DOUBT_REVERSED_AREA: f64 = 0.02;
+
+/// The threshold of [`ProtocolParams::doubt_view`] that README "Doubted views" measures (off by
+/// default): a single view's map whose orientation score reads below 0.3 (SCAPE's views read
+/// 0.13–0.6 and the 13 % below 0.3 are matched at 44–84 %).
+pub const DOUBT_VIEW_ORIENTATION: f64 = 0.3;
 
 /// Where a test's wrong points come from (with [`ProtocolParams::diagnose`]): the fraction of
 /// the evaluated points of the matched part within 0.05 (strict, and up to the mirror
@@ -210,6 +222,7 @@ impl Default for ProtocolParams {
             relay: true,
             relay_votes: 1,
             doubt: Some(DOUBT_REVERSED_AREA),
+            doubt_view: None,
         }
     }
 }
@@ -329,6 +342,15 @@ pub struct TestResult {
     /// one vote.
     #[serde(default)]
     pub reversed_area: Option<f64>,
+    /// A doubted single view ([`ProtocolParams::doubt_view`]): the poses it was regularised onto
+    /// besides the one whose map was kept (`relay`, or the reference when `relay` is `None`).
+    #[serde(default)]
+    pub tried: Vec<usize>,
+    /// On a single view, the orientation score of the map from the nearest pose onto the
+    /// reference ([`crate::regularizer::view_orientation`]); measured with one vote and no
+    /// doubt of a mirrored part.
+    #[serde(default)]
+    pub view_orientation: Option<f64>,
     /// Whether the forest's prediction read as a mirror image as a whole and the regulariser
     /// read it through the symmetry ([`crate::regularizer::DenseMap::prediction_mirrored`], of
     /// the map onto the nearest pose).
@@ -823,7 +845,7 @@ pub fn run_protocol(
             let share = reversed(prepared, &dense);
             Ok((dense.carried(to_reference)?, share))
         };
-        let target = targets[0];
+        let mut target = targets[0];
         // A carried or voted map did not end with a refinement onto the reference: settled onto it.
         let settle = |dense: DenseMap, carried_or_voted: bool| -> Result<DenseMap, EvalError> {
             if !carried_or_voted {
@@ -842,6 +864,7 @@ pub fn run_protocol(
         let one_vote = targets.len() == 1;
         let (first, reversed) = regularize_onto(&prepared_relays, target, &prediction, one_vote)?;
         let (prediction_mirrored, alternative_kept) = (first.prediction_mirrored, first.alternative_kept);
+        let mut tried = Vec::new();
         let dense = if !one_vote {
             voted(first, &targets[1..], &prepared_relays)?
         } else if params.doubt.is_some_and(|limit| reversed.is_some_and(|r| r > limit)) && ranked.len() > 1 {
@@ -851,6 +874,31 @@ pub fn run_protocol(
             voted(first, &targets[1..], &prepared_relays)?
         } else {
             settle(first, target != reference)?
+        };
+        // On a single view, how the map onto the reference reads; one that reads poorly
+        // oriented: the view onto the next nearest poses too, the best oriented map kept.
+        let view_score = view_orientation(&test_prepared.mesh, &ref_prepared.mesh, &dense.map)
+            .filter(|_| one_vote && targets.len() == 1);
+        let dense = match view_score {
+            Some(score) if params.doubt_view.is_some_and(|limit| score < limit) && ranked.len() > 1 => {
+                let others: Vec<usize> = ranked.iter().skip(1).take(DOUBT_VOTES - 1).copied().collect();
+                prepare_relays(&ranked[..others.len() + 1], &mut prepared_relays, &mut timings)?;
+                let mut best = (score, dense);
+                for &other in &others {
+                    let map = settle(
+                        regularize_onto(&prepared_relays, other, &prediction, false)?.0,
+                        other != reference,
+                    )?;
+                    let s = view_orientation(&test_prepared.mesh, &ref_prepared.mesh, &map.map);
+                    if let Some(s) = s.filter(|&s| s > best.0) {
+                        best = (s, map);
+                        target = other;
+                    }
+                }
+                tried = ranked[..others.len() + 1].iter().copied().filter(|&t| t != target).collect();
+                best.1
+            }
+            _ => dense,
         };
         timings.regularize_s = t0.elapsed().as_secs_f64();
 
@@ -956,6 +1004,8 @@ pub fn run_protocol(
             reference,
             relay: (target != reference).then_some(target),
             votes: targets[1..].to_vec(),
+            tried,
+            view_orientation: view_score,
             reversed_area: reversed,
             prediction_mirrored,
             alternative_kept,

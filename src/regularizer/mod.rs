@@ -52,8 +52,8 @@ pub use pair::{
     invert_map, pair_posterior, regularize_onto, regularize_pair, PairMap, PairParams, PairStart, PairStep,
 };
 pub use partial::{
-    boundary_distances, pair_trust, partial_area_ratio, refine_zoomout_partial, PartialScanParams,
-    MIN_REFINED_AREA_RATIO, PARTIAL_AREA_RATIO,
+    boundary_distances, pair_trust, partial_area_ratio, refine_zoomout_partial, view_orientation,
+    PartialScanParams, MIN_REFINED_AREA_RATIO, PARTIAL_AREA_RATIO,
 };
 pub use refine::{
     cell_balls, map_distortion, posterior_support, refine_zoomout, sample_cells, select_by_posterior,
