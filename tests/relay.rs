@@ -288,3 +288,79 @@ fn match_regularises_onto_the_relay_in_the_scans_pose_votes_and_writes_a_map_ont
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("short.txt") && err.contains("s3.off"), "{err}");
 }
+
+#[test]
+fn match_tries_the_next_nearest_poses_for_a_doubted_view_and_keeps_the_best_oriented_map() {
+    use shapeforest::mesh::{perturb, write_mesh, Perturbation};
+    let dir = tempfile::tempdir().unwrap();
+    let fam = family(5);
+    let n = fam.template.n_vertices();
+    let model = dir.path().join("m.sfm");
+    let training: Vec<&Mesh> = fam.shapes[1..5].iter().collect();
+    common::save_shared_indexing_model(&training, 4, &model);
+    let path = |name: &str| dir.path().join(name);
+    write_mesh(path("ref.off"), &fam.shapes[1]).unwrap();
+    for i in [2, 3] {
+        write_mesh(path(&format!("s{i}.off")), &fam.shapes[i]).unwrap();
+    }
+    // The scan: a single view of shape 3 (under half its area: read as a view).
+    let view = perturb(&fam.shapes[3], &[Perturbation::PARTIAL_VIEW], 4).unwrap().mesh;
+    let ratio = view.surface_area() / fam.shapes[1].surface_area();
+    assert!(ratio < 0.5, "the view keeps {ratio} of the area");
+    write_mesh(path("view.off"), &view).unwrap();
+    let labels: String = (0..n).map(|v| format!("{v}\n")).collect();
+    std::fs::write(path("labels.txt"), &labels).unwrap();
+    let run = |extra: &[&str]| {
+        let o = common::bin()
+            .args(["match", "--model"])
+            .arg(&model)
+            .arg("--reference")
+            .arg(path("ref.off"))
+            .arg("--mesh")
+            .arg(path("view.off"))
+            .arg("--out")
+            .arg(path("out"))
+            .arg("--relay")
+            .arg(path("s2.off"))
+            .arg(path("labels.txt"))
+            .arg("--relay")
+            .arg(path("s3.off"))
+            .arg(path("labels.txt"))
+            // (the few-shape model's map reads as mirrored in part: not voted on that doubt here)
+            .args(["--doubt-votes", "0"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(path("out/view.report.json")).unwrap()).unwrap();
+        let map = std::fs::read_to_string(path("out/view.map.txt")).unwrap();
+        assert_eq!(map.lines().filter(|l| !l.starts_with('#')).count(), view.n_vertices());
+        (report, String::from_utf8_lossy(&o.stdout).to_string())
+    };
+    // Off by default: the view's map is read, nothing else tried.
+    let (plain, _) = run(&[]);
+    let score = plain["view_orientation"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("a view's map onto the reference is read: {plain}"));
+    assert!(score < 1.0, "{plain}");
+    assert!(plain["tried_poses"].as_array().unwrap().is_empty() && plain["doubted"] == false, "{plain}");
+    // Doubting every view: the three poses tried, the kept one reported, none voted.
+    let (doubted, stdout) = run(&["--doubt-view", "1"]);
+    assert!(doubted["doubted"] == true && doubted["voted_with"].as_array().unwrap().is_empty(), "{doubted}");
+    let mut poses: Vec<String> =
+        doubted["tried_poses"].as_array().unwrap().iter().map(|v| v.as_str().unwrap().to_string()).collect();
+    assert_eq!(poses.len(), 2, "{doubted}");
+    let kept = doubted["regularised_onto_relay"].as_str().map_or(path("ref.off"), std::path::PathBuf::from);
+    poses.push(kept.display().to_string());
+    for name in ["ref.off", "s2.off", "s3.off"] {
+        assert!(poses.iter().any(|p| p.ends_with(name)), "{name} not among {poses:?}");
+    }
+    assert!(stdout.contains("the best oriented of the view's maps onto 3 poses"), "{stdout}");
+    // The threshold is a score between 0 and 1.
+    let o = common::bin()
+        .args(["match", "--doubt-view", "2", "--model", "x", "--reference", "y", "--mesh", "z"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("between 0 and 1"));
+}
