@@ -356,11 +356,11 @@ fn train_learns_from_perturbed_copies_when_asked() {
     assert!(String::from_utf8_lossy(&bad.stderr).contains("expected N:R"));
 }
 
-#[test]
-fn local_histograms_match_single_views_of_the_synthetic_family() {
+/// The synthetic family's single-view protocol: five training shapes with three single-view
+/// copies each, two test views, a ten-tree forest.
+fn single_views() -> ProtocolParams {
     let view = vec![Perturbation::PARTIAL_VIEW];
-    let (shapes, symmetry) = shapes_and_symmetry(3000, 7);
-    let params = |local: Option<LocalParams>| ProtocolParams {
+    ProtocolParams {
         n_train: 5,
         max_tests: Some(2),
         train_once: true,
@@ -368,11 +368,16 @@ fn local_histograms_match_single_views_of_the_synthetic_family() {
         forest: RandomForest::params().n_trees(10).seed(1),
         perturbations: view.clone(),
         skip_baseline: true,
-        augment: vec![view.clone()],
+        augment: vec![view],
         augment_copies: 3,
-        local,
         ..ProtocolParams::default()
-    };
+    }
+}
+
+#[test]
+fn local_histograms_match_single_views_of_the_synthetic_family() {
+    let (shapes, symmetry) = shapes_and_symmetry(3000, 7);
+    let params = |local: Option<LocalParams>| ProtocolParams { local, ..single_views() };
     let spectral = run_protocol(&shapes, Some(&symmetry), &params(None), None).expect("protocol");
     let local = run_protocol(&shapes, Some(&symmetry), &params(Some(LocalParams::default())), None)
         .expect("protocol");
@@ -387,21 +392,8 @@ fn local_histograms_match_single_views_of_the_synthetic_family() {
 
 #[test]
 fn a_doubted_view_is_regularised_onto_the_next_poses_and_keeps_the_best_oriented_map() {
-    let view = vec![Perturbation::PARTIAL_VIEW];
     let (shapes, symmetry) = shapes_and_symmetry(3000, 7);
-    let params = |doubt_view: Option<f64>| ProtocolParams {
-        n_train: 5,
-        max_tests: Some(2),
-        train_once: true,
-        eval_points: 500,
-        forest: RandomForest::params().n_trees(10).seed(1),
-        perturbations: view.clone(),
-        skip_baseline: true,
-        augment: vec![view.clone()],
-        augment_copies: 3,
-        doubt_view,
-        ..ProtocolParams::default()
-    };
+    let params = |doubt_view: Option<f64>| ProtocolParams { doubt_view, ..single_views() };
     let run =
         |doubt_view| run_protocol(&shapes, Some(&symmetry), &params(doubt_view), None).expect("protocol");
     // Off by default; on, a threshold above every score doubts every view.
@@ -442,21 +434,12 @@ fn a_doubted_view_is_regularised_onto_the_next_poses_and_keeps_the_best_oriented
 
 #[test]
 fn single_views_gain_from_leaves_of_several_vertices_and_more_game_candidates() {
-    let view = vec![Perturbation::PARTIAL_VIEW];
     let (shapes, symmetry) = shapes_and_symmetry(3000, 7);
     let params = |leaf: usize, part_top_k: usize, part_alternative: bool| ProtocolParams {
-        n_train: 5,
-        max_tests: Some(2),
-        train_once: true,
-        eval_points: 500,
         forest: RandomForest::params().n_trees(10).seed(1).min_samples_leaf(leaf),
-        perturbations: view.clone(),
-        skip_baseline: true,
-        augment: vec![view.clone()],
-        augment_copies: 3,
         local: Some(LocalParams::default()),
         regularizer: RegularizerParams { part_top_k, part_alternative, ..Default::default() },
-        ..ProtocolParams::default()
+        ..single_views()
     };
     let run = |leaf, k, alternative| {
         run_protocol(&shapes, Some(&symmetry), &params(leaf, k, alternative), None).expect("protocol")

@@ -196,24 +196,33 @@ fn a_map_that_reads_as_mirrored_is_voted_with_the_next_nearest_poses() {
     assert!(c.within_005 >= d.within_005 - 0.02, "voted on doubt {c:?} vs never {d:?}");
 }
 
+/// The files of a `match` with relays, in `dir`: `m.sfm`, a model of shapes 1–4 of a five-shape
+/// family (shape 1 the reference, `ref.off`), shapes 2 and 3 as `s2.off` and `s3.off`, and the
+/// identity label map `labels.txt` (returned, with the family).
+fn match_files(dir: &std::path::Path) -> (shapeforest::synth::ShapeFamily, String) {
+    use shapeforest::mesh::write_mesh;
+    let fam = family(5);
+    let training: Vec<&Mesh> = fam.shapes[1..5].iter().collect();
+    common::save_shared_indexing_model(&training, 4, &dir.join("m.sfm"));
+    write_mesh(dir.join("ref.off"), &fam.shapes[1]).unwrap();
+    for i in [2, 3] {
+        write_mesh(dir.join(format!("s{i}.off")), &fam.shapes[i]).unwrap();
+    }
+    let labels: String = (0..fam.template.n_vertices()).map(|v| format!("{v}\n")).collect();
+    std::fs::write(dir.join("labels.txt"), &labels).unwrap();
+    (fam, labels)
+}
+
 #[test]
 fn match_regularises_onto_the_relay_in_the_scans_pose_votes_and_writes_a_map_onto_the_reference() {
     use shapeforest::mesh::write_mesh;
     let dir = tempfile::tempdir().unwrap();
-    let fam = family(5);
+    let (fam, labels) = match_files(dir.path());
     let n = fam.template.n_vertices();
     let model = dir.path().join("m.sfm");
-    let training: Vec<&Mesh> = fam.shapes[1..5].iter().collect();
-    common::save_shared_indexing_model(&training, 4, &model);
     let path = |name: &str| dir.path().join(name);
-    write_mesh(path("ref.off"), &fam.shapes[1]).unwrap();
-    for i in [2, 3] {
-        write_mesh(path(&format!("s{i}.off")), &fam.shapes[i]).unwrap();
-    }
     // The scan: shape 3's pose at twice its size (a training shape's pose, as the relay's).
     write_mesh(path("scan.off"), &fam.shapes[3].scaled(2.0)).unwrap();
-    let labels: String = (0..n).map(|v| format!("{v}\n")).collect();
-    std::fs::write(path("labels.txt"), &labels).unwrap();
     let run_with = |relay_labels: &str, votes: &str, extra: &[&str]| {
         common::bin()
             .args(["match", "--model"])
@@ -293,23 +302,14 @@ fn match_regularises_onto_the_relay_in_the_scans_pose_votes_and_writes_a_map_ont
 fn match_tries_the_next_nearest_poses_for_a_doubted_view_and_keeps_the_best_oriented_map() {
     use shapeforest::mesh::{perturb, write_mesh, Perturbation};
     let dir = tempfile::tempdir().unwrap();
-    let fam = family(5);
-    let n = fam.template.n_vertices();
+    let (fam, _) = match_files(dir.path());
     let model = dir.path().join("m.sfm");
-    let training: Vec<&Mesh> = fam.shapes[1..5].iter().collect();
-    common::save_shared_indexing_model(&training, 4, &model);
     let path = |name: &str| dir.path().join(name);
-    write_mesh(path("ref.off"), &fam.shapes[1]).unwrap();
-    for i in [2, 3] {
-        write_mesh(path(&format!("s{i}.off")), &fam.shapes[i]).unwrap();
-    }
     // The scan: a single view of shape 3 (under half its area: read as a view).
     let view = perturb(&fam.shapes[3], &[Perturbation::PARTIAL_VIEW], 4).unwrap().mesh;
     let ratio = view.surface_area() / fam.shapes[1].surface_area();
     assert!(ratio < 0.5, "the view keeps {ratio} of the area");
     write_mesh(path("view.off"), &view).unwrap();
-    let labels: String = (0..n).map(|v| format!("{v}\n")).collect();
-    std::fs::write(path("labels.txt"), &labels).unwrap();
     let run = |extra: &[&str]| {
         let o = common::bin()
             .args(["match", "--model"])

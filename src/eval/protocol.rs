@@ -176,7 +176,7 @@ pub const DOUBT_REVERSED_AREA: f64 = 0.02;
 
 /// The threshold of [`ProtocolParams::doubt_view`] that README "Doubted views" measures (off by
 /// default): a single view's map whose orientation score reads below 0.3 (SCAPE's views read
-/// 0.13–0.6 and the 13 % below 0.3 are matched at 44–84 %).
+/// 0.13–0.64 and the 13 % below 0.3 are matched at 44–82 %).
 pub const DOUBT_VIEW_ORIENTATION: f64 = 0.3;
 
 /// Where a test's wrong points come from (with [`ProtocolParams::diagnose`]): the fraction of
