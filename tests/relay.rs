@@ -213,32 +213,40 @@ fn match_files(dir: &std::path::Path) -> (shapeforest::synth::ShapeFamily, Strin
     (fam, labels)
 }
 
+/// `match` of `mesh` in `dir` (the files of [`match_files`]) onto `ref.off`, with the relays
+/// `s2.off` and `s3.off` (the latter with the label map `s3_labels`), written to `out`.
+fn match_with_relays(dir: &std::path::Path, mesh: &str, s3_labels: &str) -> std::process::Command {
+    let path = |name: &str| dir.join(name);
+    let mut command = common::bin();
+    command
+        .args(["match", "--model"])
+        .arg(path("m.sfm"))
+        .arg("--reference")
+        .arg(path("ref.off"))
+        .arg("--mesh")
+        .arg(path(mesh))
+        .arg("--out")
+        .arg(path("out"))
+        .arg("--relay")
+        .arg(path("s2.off"))
+        .arg(path("labels.txt"))
+        .arg("--relay")
+        .arg(path("s3.off"))
+        .arg(path(s3_labels));
+    command
+}
+
 #[test]
 fn match_regularises_onto_the_relay_in_the_scans_pose_votes_and_writes_a_map_onto_the_reference() {
     use shapeforest::mesh::write_mesh;
     let dir = tempfile::tempdir().unwrap();
     let (fam, labels) = match_files(dir.path());
     let n = fam.template.n_vertices();
-    let model = dir.path().join("m.sfm");
     let path = |name: &str| dir.path().join(name);
     // The scan: shape 3's pose at twice its size (a training shape's pose, as the relay's).
     write_mesh(path("scan.off"), &fam.shapes[3].scaled(2.0)).unwrap();
     let run_with = |relay_labels: &str, votes: &str, extra: &[&str]| {
-        common::bin()
-            .args(["match", "--model"])
-            .arg(&model)
-            .arg("--reference")
-            .arg(path("ref.off"))
-            .arg("--mesh")
-            .arg(path("scan.off"))
-            .arg("--out")
-            .arg(path("out"))
-            .arg("--relay")
-            .arg(path("s2.off"))
-            .arg(path("labels.txt"))
-            .arg("--relay")
-            .arg(path("s3.off"))
-            .arg(path(relay_labels))
+        match_with_relays(dir.path(), "scan.off", relay_labels)
             .args(["--relay-votes", votes])
             .args(extra)
             .output()
@@ -303,7 +311,6 @@ fn match_tries_the_next_nearest_poses_for_a_doubted_view_and_keeps_the_best_orie
     use shapeforest::mesh::{perturb, write_mesh, Perturbation};
     let dir = tempfile::tempdir().unwrap();
     let (fam, _) = match_files(dir.path());
-    let model = dir.path().join("m.sfm");
     let path = |name: &str| dir.path().join(name);
     // The scan: a single view of shape 3 (under half its area: read as a view).
     let view = perturb(&fam.shapes[3], &[Perturbation::PARTIAL_VIEW], 4).unwrap().mesh;
@@ -311,21 +318,7 @@ fn match_tries_the_next_nearest_poses_for_a_doubted_view_and_keeps_the_best_orie
     assert!(ratio < 0.5, "the view keeps {ratio} of the area");
     write_mesh(path("view.off"), &view).unwrap();
     let run = |extra: &[&str]| {
-        let o = common::bin()
-            .args(["match", "--model"])
-            .arg(&model)
-            .arg("--reference")
-            .arg(path("ref.off"))
-            .arg("--mesh")
-            .arg(path("view.off"))
-            .arg("--out")
-            .arg(path("out"))
-            .arg("--relay")
-            .arg(path("s2.off"))
-            .arg(path("labels.txt"))
-            .arg("--relay")
-            .arg(path("s3.off"))
-            .arg(path("labels.txt"))
+        let o = match_with_relays(dir.path(), "view.off", "labels.txt")
             // (the few-shape model's map reads as mirrored in part: not voted on that doubt here)
             .args(["--doubt-votes", "0"])
             .args(extra)

@@ -655,7 +655,8 @@ pub fn run(args: MatchArgs) -> Result<()> {
         // (one vote); above `--doubt-votes`, the map was voted with the next nearest poses'
         "reversed_area": reversed,
         "doubted": reversed.is_some() && (!voted_with.is_empty() || !tried.is_empty()),
-        // on a single view, the orientation score of the map onto the nearest pose (one vote);
+        // on a single view, the orientation score of the map from the nearest pose onto the
+        // reference (one vote, not voted on a mirrored part);
         // below `--doubt-view`, the view was regularised onto the next nearest poses too and the
         // best oriented map kept (`regularised_onto_relay`; the others in `tried_poses`)
         "view_orientation": view_score,

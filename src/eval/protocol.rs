@@ -877,8 +877,9 @@ pub fn run_protocol(
         };
         // On a single view, how the map onto the reference reads; one that reads poorly
         // oriented: the view onto the next nearest poses too, the best oriented map kept.
+        // (Not read on voted maps: several votes asked for, or a mirrored part's doubt.)
         let view_score = view_orientation(&test_prepared.mesh, &ref_prepared.mesh, &dense.map)
-            .filter(|_| one_vote && targets.len() == 1);
+            .filter(|_| targets.len() == 1);
         let dense = match view_score {
             Some(score) if params.doubt_view.is_some_and(|limit| score < limit) && ranked.len() > 1 => {
                 let others: Vec<usize> = ranked.iter().skip(1).take(DOUBT_VOTES - 1).copied().collect();

@@ -88,7 +88,12 @@ pub const MIN_REFINED_AREA_RATIO: f64 = 0.5;
 /// area (a single view): the whole body's spectral cues fail there, so it is not refined and
 /// the game's orientation is read extrinsically.
 pub(super) fn is_small_part(test: &PreparedShape, reference: &PreparedShape) -> bool {
-    partial_area_ratio(test, reference).is_some_and(|r| r < MIN_REFINED_AREA_RATIO)
+    is_small_part_mesh(&test.mesh, &reference.mesh)
+}
+
+/// [`is_small_part`] of the meshes.
+fn is_small_part_mesh(test: &Mesh, reference: &Mesh) -> bool {
+    part_area_ratio(test, reference).is_some_and(|r| r < MIN_REFINED_AREA_RATIO)
 }
 
 /// On a single view (an open part of less than [`MIN_REFINED_AREA_RATIO`] of `onto`'s area), the
@@ -100,9 +105,7 @@ pub(super) fn is_small_part(test: &PreparedShape, reference: &PreparedShape) -> 
 /// threshold is regularised onto other poses too and the best oriented map kept (README
 /// "Doubted views"). `None` on other scans.
 pub fn view_orientation(test: &Mesh, onto: &Mesh, map: &[usize]) -> Option<f64> {
-    part_area_ratio(test, onto)
-        .is_some_and(|r| r < MIN_REFINED_AREA_RATIO)
-        .then(|| super::map_orientation(test, onto, map).score)
+    is_small_part_mesh(test, onto).then(|| super::map_orientation(test, onto, map).score)
 }
 
 /// The area of `test` over the reference's when `test` is an open part of it (it has boundary
