@@ -93,6 +93,30 @@ fn case_of(creatures: CreatureParams, forest_seed: u64) -> Case {
 }
 
 #[test]
+fn a_reference_serving_many_scans_solves_each_distance_column_once() {
+    let Case { n, prediction, test, reference, .. } = case(7, 3);
+    let reference = reference.serving_many();
+    let params = RegularizerParams::default();
+    let first = regularize(&test, &reference, &prediction, None, &params).unwrap();
+    let (solved, _) = reference.column_counts();
+    assert!(solved > 0);
+    // The next scan onto the same reference (here the same one again) finds its columns kept,
+    // and the map does not change for it.
+    let again = regularize(&test, &reference, &prediction, None, &params).unwrap();
+    let (solved_again, reused) = reference.column_counts();
+    assert_eq!(solved_again, solved, "columns solved again for the second scan");
+    assert!(reused >= solved, "{reused} columns reused, {solved} solved");
+    assert_eq!(again.map, first.map);
+    // A 2,000-vertex shape keeps every one of its columns: each is solved once, however often
+    // it is asked for (a shape kept at the default 512 would solve most of them twice).
+    let all: Vec<usize> = (0..n).collect();
+    for _ in 0..2 {
+        reference.distance_columns(&all).unwrap();
+    }
+    assert_eq!(reference.column_counts().0, n as u64);
+}
+
+#[test]
 fn anchor_growth_places_vertices_at_least_as_well_as_the_games_few_anchors() {
     let Case { n, prediction, test, reference, .. } = case(7, 3);
     let dense = regularize(&test, &reference, &prediction, None, &RegularizerParams::default()).unwrap();

@@ -31,7 +31,7 @@ use shapeforest::{
         plot_curves_svg,
         protocol::{
             run_protocol, Method, ProtocolEvent, ProtocolParams, ProtocolReport, ProtocolShape, TestResult,
-            TestTimings, DOUBT_REVERSED_AREA,
+            TestTimings, DOUBT_REVERSED_AREA, DOUBT_VIEW_ORIENTATION,
         },
         symmetry::{
             label_symmetry_from_mirrored_truth, MirroredTruth, SymmetricFeatures, SymmetryParams,
@@ -224,10 +224,11 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = DOUBT_REVERSED_AREA, value_name = "F", value_parser = parse_share)]
     pub doubt_votes: f64,
     /// With one vote, on a single view: a map whose orientation score reads below this
-    /// (results.csv: view_orientation) is doubted: the view is regularised onto the next two
-    /// nearest poses too and the best oriented map kept (results.csv: tried_poses;
-    /// `ProtocolParams::doubt_view`; README "Doubted views", which measures 0.3; default 0: never).
-    #[arg(long, default_value_t = 0.0, value_name = "S", value_parser = parse_share)]
+    /// (results.csv: view_orientation) is doubted: the view is regularised onto the next nearest
+    /// poses too, one after another until a map reads at least this (two at most), and the best
+    /// oriented map kept (results.csv: tried_poses;
+    /// `ProtocolParams::doubt_view`; README "Doubted views"; 0: never).
+    #[arg(long, default_value_t = DOUBT_VIEW_ORIENTATION, value_name = "S", value_parser = parse_share)]
     pub doubt_view: f64,
     /// Anchor growth weighs each (vertex, anchor) distance by how far it can be from the
     /// scan's boundary (see `regularizer::pair_trust`).

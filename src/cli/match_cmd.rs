@@ -107,9 +107,10 @@ pub struct MatchArgs {
     pub doubt_votes: f64,
     /// With --relay and one vote, on a single view: a map whose orientation score reads below
     /// this (the report's `view_orientation`) is doubted: the view is regularised onto the next
-    /// two nearest poses too and the best oriented map kept (the report's `tried_poses`; README
-    /// "Doubted views", which measures 0.3; default 0: never).
-    #[arg(long, default_value_t = 0.0, value_name = "S", value_parser = super::eval::parse_share)]
+    /// nearest poses too, one after another until a map reads at least this (two at most), and
+    /// the best oriented map kept (the report's `tried_poses`; README
+    /// "Doubted views"; 0: never).
+    #[arg(long, default_value_t = shapeforest::eval::protocol::DOUBT_VIEW_ORIENTATION, value_name = "S", value_parser = super::eval::parse_share)]
     pub doubt_view: f64,
 }
 
@@ -565,11 +566,15 @@ pub fn run(args: MatchArgs) -> Result<()> {
             let dense = if one_vote && (mirrored || poorly_oriented) {
                 // A map that reads as mirrored in part: voted with the next nearest poses'.
                 ontos = ranked.iter().take(DOUBT_VOTES).copied().collect();
-                let t1 = Instant::now();
-                for &onto in &ontos[1..] {
-                    let shape = match onto {
+                // A mirrored part: voted with every pose's map. A poorly oriented view: the next
+                // poses in order of nearness until a map reads oriented enough, the best kept.
+                let limit = doubt_view.unwrap_or(f64::NEG_INFINITY);
+                let mut best = (view_score.unwrap_or(f64::NEG_INFINITY), dense, 0);
+                while onto_shapes.len() < ontos.len() && (mirrored || best.0 < limit) {
+                    let t1 = Instant::now();
+                    let shape = match ontos[onto_shapes.len()] {
                         None if settle_reference.is_some() => settle_reference.take().expect("checked"),
-                        _ => {
+                        onto => {
                             let (shape, spectrum_s, preparation_s) = prepare_onto_shape(onto)?;
                             spectrum_ref_s += spectrum_s;
                             prepare_s += preparation_s;
@@ -577,21 +582,23 @@ pub fn run(args: MatchArgs) -> Result<()> {
                         }
                     };
                     onto_shapes.push(shape);
-                }
-                doubt_prepare_s = t1.elapsed().as_secs_f64();
-                if mirrored {
-                    vote(dense, &onto_shapes, settle_reference.as_ref())?
-                } else {
-                    let mut best = (view_score.unwrap_or(f64::NEG_INFINITY), dense, 0);
-                    for (i, onto) in onto_shapes.iter().enumerate().skip(1) {
-                        let (map, _) = onto_map(onto, false)?;
-                        let carried = onto.to_reference.is_some();
-                        let map = settle(map, &onto_shapes, settle_reference.as_ref(), carried)?;
-                        let s = view_orientation(&test.mesh, &reference, &map.map);
-                        if let Some(s) = s.filter(|&s| s > best.0) {
-                            best = (s, map, i);
-                        }
+                    doubt_prepare_s += t1.elapsed().as_secs_f64();
+                    if mirrored {
+                        continue;
                     }
+                    let onto = &onto_shapes[onto_shapes.len() - 1];
+                    let (map, _) = onto_map(onto, false)?;
+                    let map =
+                        settle(map, &onto_shapes, settle_reference.as_ref(), onto.to_reference.is_some())?;
+                    let s = view_orientation(&test.mesh, &reference, &map.map);
+                    if let Some(s) = s.filter(|&s| s > best.0) {
+                        best = (s, map, onto_shapes.len() - 1);
+                    }
+                }
+                if mirrored {
+                    vote(best.1, &onto_shapes, settle_reference.as_ref())?
+                } else {
+                    ontos.truncate(onto_shapes.len());
                     chosen = Some((best.2, best.0));
                     best.1
                 }

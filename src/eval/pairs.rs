@@ -362,7 +362,7 @@ pub fn run_pairs(
         let sp = spectrum_cached(&shapes[s].mesh, &zoomout_params, cache.as_ref())?;
         Ok(p.with_zoomout_spectrum(Arc::new(sp))?)
     };
-    let ref_prepared = prepare(reference)?;
+    let ref_prepared = prepare(reference)?.serving_many();
     let mut prepared: HashMap<usize, (PreparedShape, crate::forest::Prediction, DenseMap)> = HashMap::new();
     let halves = params.pair.halves(&params.regularizer);
     for (i, &s) in tested.iter().enumerate() {

@@ -245,7 +245,8 @@ pub fn load_live_model_for(
                 )
             })?,
         };
-        let mut reference = PreparedShape::new(mesh, Arc::new(spectrum), heat).map_err(|e| e.to_string())?;
+        let mut reference =
+            PreparedShape::new(mesh, Arc::new(spectrum), heat).map_err(|e| e.to_string())?.serving_many();
         // A model that stores its reference's symmetry (trained from `.sym.vts`) repairs mirrored maps.
         if let Some(s) =
             forest.reference().filter(|r| r.is_mesh(&reference.mesh)).and_then(|r| r.symmetry_map())

@@ -16,8 +16,9 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-/// One column: distances (mesh units) from a source to every vertex.
-pub(crate) type Column = Arc<[f64]>;
+/// One column: distances (mesh units) from a source to every vertex, rounded to `f32` (half the
+/// memory of a column solved in `f64`; the heat method's own error is a percent or more).
+pub(crate) type Column = Arc<[f32]>;
 
 /// A bounded, least-recently-used store of distance columns by source vertex.
 pub(crate) struct ColumnCache {
@@ -128,7 +129,7 @@ mod tests {
     use super::*;
 
     fn col(s: usize) -> Column {
-        vec![s as f64; 3].into()
+        vec![s as f32; 3].into()
     }
 
     #[test]

@@ -96,7 +96,7 @@ struct GrowthSetup<'a> {
     /// Farthest-point samples of the test shape.
     samples: Vec<usize>,
     /// Distances from the samples on the test shape (one column per sample, not normalised).
-    a_fields: Vec<Arc<[f64]>>,
+    a_fields: Vec<Arc<[f32]>>,
     /// Orientation descriptors of the test and reference shapes.
     orientation: Orientation,
     /// Normalised distances to the test shape's boundary, when pairs are weighed by
@@ -153,7 +153,11 @@ fn reference_columns(
 ) -> Result<std::collections::HashMap<usize, Vec<f32>>, Error> {
     let rs = 1.0 / reference.sqrt_area();
     let f = reference.distance_columns(targets)?;
-    Ok(targets.iter().zip(f).map(|(&t, col)| (t, col.iter().map(|&d| (d * rs) as f32).collect())).collect())
+    Ok(targets
+        .iter()
+        .zip(f)
+        .map(|(&t, col)| (t, col.iter().map(|&d| (f64::from(d) * rs) as f32).collect()))
+        .collect())
 }
 
 /// What anchor growth returns.
@@ -209,11 +213,14 @@ fn grow_rounds(
             .into_par_iter()
             .map(|i| {
                 let ci = &ref_cols[&targets[i]];
-                let disagreement = |j: usize| (a_col(i)[samples[j]] * ts - ci[targets[j]] as f64).abs();
+                let disagreement =
+                    |j: usize| (f64::from(a_col(i)[samples[j]]) * ts - f64::from(ci[targets[j]])).abs();
                 // Pairs whose geodesic may run along a hole are left out (all kept when too few
                 // remain).
                 let mut d: Vec<f64> = (0..s)
-                    .filter(|&j| j != i && trust(a_col(i)[samples[j]] * ts, samples[i], samples[j]) >= 0.5)
+                    .filter(|&j| {
+                        j != i && trust(f64::from(a_col(i)[samples[j]]) * ts, samples[i], samples[j]) >= 0.5
+                    })
                     .map(disagreement)
                     .collect();
                 if d.len() < 5 {
@@ -229,10 +236,10 @@ fn grow_rounds(
         let k = kept.len();
         debug_assert_eq!(k, n_keep);
         // Filled a row (vertex) at a time, in parallel.
-        let kept_cols: Vec<(&[f64], usize)> = kept.iter().map(|&i| (a_col(i), samples[i])).collect();
+        let kept_cols: Vec<(&[f32], usize)> = kept.iter().map(|&i| (a_col(i), samples[i])).collect();
         a.par_chunks_mut(k).zip(w.par_chunks_mut(k)).enumerate().for_each(|(v, (av, wv))| {
             for (j, &(col, sample)) in kept_cols.iter().enumerate() {
-                let d = col[v] * ts;
+                let d = f64::from(col[v]) * ts;
                 av[j] = d as f32;
                 let local = if p.locality > 0.0 { (-d / p.locality).exp() } else { 1.0 };
                 wv[j] = (local * trust(d, v, sample)) as f32;

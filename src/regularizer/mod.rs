@@ -172,9 +172,9 @@ impl PreparedShape {
         Ok(self)
     }
 
-    /// Distance columns a prepared shape keeps for reuse (least recently used dropped first):
-    /// `512 · n · 8` bytes at most, 82 MB at 20K vertices, 215 MB at 52K. A reference that
-    /// serves many scans solves a column once while it is among the last 512 used.
+    /// Distance columns a prepared shape keeps for reuse (least recently used dropped first), as
+    /// `f32`: `512 · n · 4` bytes at most, 41 MB at 20K vertices, 107 MB at 52K. A shape that
+    /// serves many scans keeps more ([`PreparedShape::serving_many`]).
     pub const KEPT_COLUMNS: usize = 512;
 
     /// The same shape keeping at most `columns` distance columns (0: none).
@@ -183,11 +183,29 @@ impl PreparedShape {
         self
     }
 
+    /// Bytes of distance columns kept by a shape that serves many scans
+    /// ([`PreparedShape::serving_many`]).
+    pub const SERVING_BYTES: usize = 256 << 20;
+
+    /// The same shape keeping as many distance columns as [`PreparedShape::SERVING_BYTES`] hold
+    /// (at least [`PreparedShape::KEPT_COLUMNS`], at most one per vertex): 5,368 at 12.5K
+    /// vertices, 3,355 at 20K, 1,290 at 52K. For a reference or relay that the maps of many
+    /// scans go onto (the daemon's model reference, an evaluation's reference and relays): a
+    /// single view asks the reference for some 1,860 columns (its game's candidates and anchor
+    /// growth's targets), the next view for many of the same, and 512 kept ones served 280 of
+    /// them (README "Distance columns kept").
+    pub fn serving_many(self) -> Self {
+        let n = self.mesh.n_vertices();
+        let columns =
+            (Self::SERVING_BYTES / (4 * n.max(1))).clamp(Self::KEPT_COLUMNS, n.max(Self::KEPT_COLUMNS));
+        self.with_kept_columns(columns)
+    }
+
     /// Geodesic distances (mesh units) from each source to every vertex, one column per
     /// source, solved by the heat method in one block for the sources not kept from earlier
     /// calls (see [`PreparedShape::KEPT_COLUMNS`]).
-    pub fn distance_columns(&self, sources: &[usize]) -> Result<Vec<Arc<[f64]>>, Error> {
-        self.columns.get_or_solve(sources, |missing| Ok(self.heat.distance_columns(missing)?))
+    pub fn distance_columns(&self, sources: &[usize]) -> Result<Vec<Arc<[f32]>>, Error> {
+        self.columns.get_or_solve(sources, |missing| Ok(self.heat.distance_columns_f32(missing)?))
     }
 
     /// Heat-method columns solved, and served from the kept ones, since the shape was prepared.
@@ -720,12 +738,12 @@ impl SoftCorrespondence for LabelledPosterior<'_> {
 }
 
 /// Symmetrised, normalised distance matrix among `points` from their columns.
-fn pairwise(fields: &[Arc<[f64]>], points: &[usize], scale: f64) -> Vec<f64> {
+fn pairwise(fields: &[Arc<[f32]>], points: &[usize], scale: f64) -> Vec<f64> {
     let s = points.len();
     let mut d = vec![0.0; s * s];
     for i in 0..s {
         for j in 0..s {
-            d[i * s + j] = 0.5 * (fields[i][points[j]] + fields[j][points[i]]) / scale;
+            d[i * s + j] = 0.5 * (f64::from(fields[i][points[j]]) + f64::from(fields[j][points[i]])) / scale;
         }
     }
     d
@@ -961,7 +979,7 @@ pub fn sparse_matches(
             .collect();
         let (ts, rs) = (test.sqrt_area(), reference.sqrt_area());
         let kept_test = Mat::from_fn(test.mesh.n_vertices(), game.matches.len(), |v, j| {
-            test_fields[game.matches[j].test][v] / ts
+            f64::from(test_fields[game.matches[j].test][v]) / ts
         });
         // Through the symmetry the matched images' own columns (the game's are their mirrors').
         let mirrored_columns = match through {
@@ -970,7 +988,7 @@ pub fn sparse_matches(
         };
         let kept_ref = Mat::from_fn(reference.mesh.n_vertices(), game.matches.len(), |v, j| {
             let column = mirrored_columns.as_ref().map_or(&ref_fields[game.matches[j].reference], |c| &c[j]);
-            column[v] / rs
+            f64::from(column[v]) / rs
         });
         Ok(SparseMatches {
             samples: samples.clone(),

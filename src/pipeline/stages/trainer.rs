@@ -513,7 +513,8 @@ impl TrainerSink {
             );
         }
         let mut prepared = PreparedShape::new(shape.shape.mesh.clone(), ts.spectrum.clone(), self.heat)
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| e.to_string())?
+            .serving_many();
         // Its `.sym.vts` (checked on arrival) gives the reference its left/right symmetry, with
         // which the regulariser repairs mirrored maps.
         if let (Some(own), Some(mirror)) = (rows.get(&job.id), mirrors.get(&job.id)) {
