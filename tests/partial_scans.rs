@@ -429,6 +429,19 @@ fn a_doubted_view_is_regularised_onto_the_next_poses_and_keeps_the_best_oriented
         }
     }
     assert!(doubted > 0);
+    // The default threshold: a view whose map reads at least it is not doubted; one that reads
+    // below tries the next poses one at a time, two at most.
+    let default = run(Some(DOUBT_VIEW_ORIENTATION));
+    for (t, one) in default.tests.iter().zip(&never.tests) {
+        let score = one.view_orientation.unwrap();
+        let regularised = t.tried.len() + 1;
+        if score >= DOUBT_VIEW_ORIENTATION {
+            assert!(t.tried.is_empty(), "view {}: reads {score}, tried {:?}", t.test, t.tried);
+        } else {
+            assert!((2..=3).contains(&regularised), "view {}: reads {score}, tried {:?}", t.test, t.tried);
+        }
+        println!("view {}: reads {score:.3}, regularised onto {regularised} pose(s)", t.test);
+    }
     let (a, n) = (within_005(&always), within_005(&never));
     println!("single views, doubting every one: {n:.3} -> {a:.3}");
     assert!(a >= n - 0.02, "keeping the best oriented map lost accuracy: {n} -> {a}");
