@@ -454,12 +454,11 @@ pub fn run(args: MatchArgs) -> Result<()> {
     }
     // With relays and one vote: a map that reads as mirrored on more than this share of the
     // scan's area is voted with the maps onto the next nearest poses.
-    let doubt =
-        (args.relay_votes <= 1 && ranked.len() > 1 && args.doubt_votes > 0.0).then_some(args.doubt_votes);
+    let one_vote_of_several = args.relay_votes <= 1 && ranked.len() > 1;
+    let doubt = (one_vote_of_several && args.doubt_votes > 0.0).then_some(args.doubt_votes);
     // ... and a single view's map that reads poorly oriented is regularised onto them too, the
     // best oriented map kept.
-    let doubt_view =
-        (args.relay_votes <= 1 && ranked.len() > 1 && args.doubt_view > 0.0).then_some(args.doubt_view);
+    let doubt_view = (one_vote_of_several && args.doubt_view > 0.0).then_some(args.doubt_view);
     // A map carried from a relay or voted is settled onto the reference (`DenseMap::settled`),
     // which needs the reference prepared when it is not among the shapes regularised onto.
     let settles = args.to.is_none()

@@ -855,6 +855,10 @@ pub fn run_protocol(
             }
             Ok(dense.settled(&test_prepared, ref_prepared, &params.regularizer)?)
         };
+        // A prediction regularised onto one target as a settled map onto the reference.
+        let settled_onto = |relays: &[_], target: usize, p: &Prediction| -> Result<DenseMap, EvalError> {
+            settle(regularize_onto(relays, target, p, false)?.0, target != reference)
+        };
         // Maps onto the other targets, voted with the first.
         let voted = |first: DenseMap, others: &[usize], relays: &[_]| -> Result<DenseMap, EvalError> {
             let others: Vec<DenseMap> = others
@@ -885,20 +889,16 @@ pub fn run_protocol(
         let limit = params.doubt_view.unwrap_or(f64::NEG_INFINITY);
         let dense = match view_score {
             Some(score) if score < limit && ranked.len() > 1 => {
-                let others: Vec<usize> = ranked.iter().skip(1).take(DOUBT_VOTES - 1).copied().collect();
                 let mut best = (score, dense);
                 let mut regularised = vec![ranked[0]];
-                for &other in &others {
+                for &other in ranked.iter().skip(1).take(DOUBT_VOTES - 1) {
                     // The next poses in order of nearness, until a map reads oriented enough.
                     if best.0 >= limit {
                         break;
                     }
                     regularised.push(other);
                     prepare_relays(&regularised, &mut prepared_relays, &mut timings)?;
-                    let map = settle(
-                        regularize_onto(&prepared_relays, other, &prediction, false)?.0,
-                        other != reference,
-                    )?;
+                    let map = settled_onto(&prepared_relays, other, &prediction)?;
                     let s = view_orientation(&test_prepared.mesh, &ref_prepared.mesh, &map.map);
                     if let Some(s) = s.filter(|&s| s > best.0) {
                         best = (s, map);
@@ -921,10 +921,7 @@ pub fn run_protocol(
             let knn_prediction = knn.predict(&test_prepared.spectrum, k)?;
             timings.knn_predict_s = t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
-            let knn_dense = settle(
-                regularize_onto(&prepared_relays, target, &knn_prediction, false)?.0,
-                target != reference,
-            )?;
+            let knn_dense = settled_onto(&prepared_relays, target, &knn_prediction)?;
             timings.knn_regularize_s = t0.elapsed().as_secs_f64();
             Some((knn_prediction, knn_dense))
         };
