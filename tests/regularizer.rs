@@ -198,8 +198,12 @@ fn the_third_map_of_the_choice_sharpens_a_non_isometric_map_within_its_reach() {
     let params = RegularizerParams::default();
     // The grown map (no refinement by default), refined with each setting of the choice.
     let grown = regularize(&test, &reference, &prediction, None, &params).unwrap().map;
+    // ZoomOut exactly (every vertex a sample) and 5 basis functions a step, as when this was
+    // measured: at the default 10 a step the third map no longer sharpens this creature (83.7
+    // against 84.3 % within 0.05 before the settling round, 2026-12-07), while the shared
+    // data's classes keep their accuracy at 10 (README, "Faster refinement").
     let refine = |select: MapSelection| {
-        let z = ZoomOutParams { select: Some(select), ..Default::default() };
+        let z = ZoomOutParams { select: Some(select), step: 5, samples: 3000, ..Default::default() };
         refine_map(&test, &reference, &prediction, None, &grown, &z, &params).unwrap().expect("unchecked")
     };
     let two = refine(MapSelection { grown_extrinsic: false, ..Default::default() });

@@ -177,7 +177,7 @@ pub struct EvalArgs {
     #[arg(long)]
     pub no_zoomout: bool,
     /// Basis functions added per ZoomOut step.
-    #[arg(long, default_value_t = 5, value_name = "N")]
+    #[arg(long, default_value_t = 10, value_name = "N")]
     pub zoomout_step: usize,
     /// First basis size of ZoomOut (at most half the last one).
     #[arg(long, default_value_t = 100, value_name = "K")]
@@ -188,7 +188,7 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = 200, value_name = "K")]
     pub zoomout_final: usize,
     /// Farthest-point samples per shape that ZoomOut's iterations run on.
-    #[arg(long, default_value_t = 3000, value_name = "N")]
+    #[arg(long, default_value_t = 2000, value_name = "N")]
     pub zoomout_samples: usize,
     /// Keep ZoomOut's images within this distance (× √area of the reference) of the
     /// regularised map's.

@@ -25,6 +25,7 @@ use std::{
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use rayon::prelude::*;
 use shapeforest::{
     eval::protocol::DOUBT_VOTES,
     forest::{
@@ -538,8 +539,9 @@ pub fn run(args: MatchArgs) -> Result<()> {
                 }
             };
             let vote = |first: DenseMap, shapes: &[OntoShape<'_>], spare: Option<&OntoShape<'_>>| {
+                // Independent regularisations, side by side.
                 let others = shapes[1..]
-                    .iter()
+                    .par_iter()
                     .map(|o| onto_map(o, false).map(|(d, _)| d))
                     .collect::<Result<Vec<_>>>()?;
                 settle(first.voted(&others, &reference)?, shapes, spare, true)

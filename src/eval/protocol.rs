@@ -42,6 +42,7 @@ use std::{collections::HashMap, path::PathBuf, sync::Arc, time::Instant};
 use faer::Mat;
 use rand::{seq::index::sample, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{geodesic_errors, EvalError};
@@ -861,8 +862,9 @@ pub fn run_protocol(
         };
         // Maps onto the other targets, voted with the first.
         let voted = |first: DenseMap, others: &[usize], relays: &[_]| -> Result<DenseMap, EvalError> {
+            // Independent regularisations, side by side.
             let others: Vec<DenseMap> = others
-                .iter()
+                .par_iter()
                 .map(|&t| regularize_onto(relays, t, &prediction, false).map(|(d, _)| d))
                 .collect::<Result<_, _>>()?;
             settle(first.voted(&others, &ref_prepared.mesh)?, true)

@@ -260,10 +260,11 @@ pub struct ZoomOutParams {
     /// Final basis size (at most the spectra's K). Default 200: shapes get a spectrum of that
     /// many eigenpairs for ZoomOut ([`PreparedShape::with_zoomout_spectrum`]).
     pub k_final: usize,
-    /// Basis functions added per iteration. Default 5.
+    /// Basis functions added per iteration. Default 10 (5 until 2026-12-06: twice the
+    /// iterations for the same accuracy, README "Time per scan").
     pub step: usize,
     /// Farthest-point samples per shape the iterations run on (a shape with fewer vertices
-    /// uses all of them, which is ZoomOut exactly). Default 3000.
+    /// uses all of them, which is ZoomOut exactly). Default 2000 (3000 until 2026-12-06).
     pub samples: usize,
     /// Keep every vertex's image within this distance (in units of the reference's `√area`,
     /// along the reference) of where the anchor-grown map put it; `None`: unrestricted ZoomOut.
@@ -331,8 +332,8 @@ impl Default for ZoomOutParams {
         Self {
             k_start: 100,
             k_final: 200,
-            step: 5,
-            samples: 3000,
+            step: 10,
+            samples: 2000,
             radius: None,
             check_samples: 0,
             extrinsic: Some(ExtrinsicParams::default()),
@@ -1275,6 +1276,9 @@ pub(super) fn refines_partially(
     params.partial_zoomout && partial_area_ratio(test, reference).is_some()
 }
 
+/// A point map, test vertex → reference vertex.
+type Map = Vec<usize>;
+
 fn refine_with(
     test: &PreparedShape,
     reference: &PreparedShape,
@@ -1295,23 +1299,48 @@ fn refine_with(
             refine_zoomout(test, reference, m, z)
         }
     };
-    let mut refined = zoomed_and_repaired(test, reference, map, params.unflip, zoom)?;
-    if let (Some(e), Some(r), false) = (&z.extrinsic, &refined, partial) {
-        refined = Some(refine_extrinsic(test, reference, r, e)?);
-    }
-    if let (Some(select), Some(fine), false) = (&z.select, &refined, partial) {
-        select.check().map_err(|reason| Error::InvalidParameter { name: "select", reason })?;
+    // The refined map, and the choice's two other maps: all three start from `map` alone, so
+    // they run side by side (parts of each are sequential).
+    let fine = || -> Result<Option<Map>, Error> {
+        let refined = zoomed_and_repaired(test, reference, map, params.unflip, zoom)?;
+        match (&z.extrinsic, refined, partial) {
+            (Some(e), Some(r), false) => Ok(Some(refine_extrinsic(test, reference, &r, e)?)),
+            (_, refined, _) => Ok(refined),
+        }
+    };
+    let select = match (&z.select, partial) {
+        (Some(select), false) => {
+            select.check().map_err(|reason| Error::InvalidParameter { name: "select", reason })?;
+            Some(select)
+        }
+        _ => None,
+    };
+    let others = |select: &MapSelection| -> Result<(Option<Map>, Option<Map>), Error> {
         let zc = ZoomOutParams { k_start: select.coarse.0, k_final: select.coarse.1, select: None, ..*z };
-        let coarse = zoomed_and_repaired(test, reference, map, params.unflip, |m| {
-            refine_zoomout(test, reference, m, &zc)
-        })?;
-        // The extrinsic step of `map` itself, with the same repair of mirrored parts.
-        let sharper = match (&z.extrinsic, select.grown_extrinsic) {
-            (Some(e), true) => zoomed_and_repaired(test, reference, map, params.unflip, |m| {
-                refine_extrinsic(test, reference, m, e).map(Some)
-            })?,
-            _ => None,
-        };
+        let (coarse, sharper) = rayon::join(
+            || {
+                zoomed_and_repaired(test, reference, map, params.unflip, |m| {
+                    refine_zoomout(test, reference, m, &zc)
+                })
+            },
+            // The extrinsic step of `map` itself, with the same repair of mirrored parts.
+            || match (&z.extrinsic, select.grown_extrinsic) {
+                (Some(e), true) => zoomed_and_repaired(test, reference, map, params.unflip, |m| {
+                    refine_extrinsic(test, reference, m, e).map(Some)
+                }),
+                _ => Ok(None),
+            },
+        );
+        Ok((coarse?, sharper?))
+    };
+    let (mut refined, others) = match select {
+        Some(select) => {
+            let (refined, others) = rayon::join(fine, || others(select));
+            (refined?, Some(others?))
+        }
+        None => (fine()?, None),
+    };
+    if let (Some(select), Some(fine), Some((coarse, sharper))) = (select, &refined, others) {
         refined = Some(refine::choose_refined(
             test,
             reference,
