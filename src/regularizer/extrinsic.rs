@@ -34,11 +34,10 @@
 //! reach keeps a round driven by a wrong part from spreading it.
 
 use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par};
+use kiddo::{immutable::float::kdtree::ImmutableKdTree, SquaredEuclidean};
 use serde::{Deserialize, Serialize};
 
 use super::{PreparedShape, RegularizerError as Error};
-use kiddo::{immutable::float::kdtree::ImmutableKdTree, SquaredEuclidean};
-
 use crate::{
     fmap::{basis, nearest_in_cells, nearest_rows, nearest_rows_single, squared_distance, SampleCells},
     mesh::{norm, sub, Mesh},
