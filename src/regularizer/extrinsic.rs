@@ -157,25 +157,25 @@ pub fn refine_extrinsic(
     let phi_r = basis(rb, k);
     let edge = mean_edge_step(&test.mesh, x_t.as_ref());
     let scale = if edge > 0.0 { params.weight * mean_edge_step(&test.mesh, phi_t) / edge } else { 0.0 };
-    let coordinates: Vec<[f64; 3]> = (0..n_r).map(|r| [x_r[(r, 0)], x_r[(r, 1)], x_r[(r, 2)]]).collect();
     let search = if scale > 0.0 {
-        Search::Joint {
-            scale,
+        let coordinates: Vec<[f64; 3]> = (0..n_r).map(|r| [x_r[(r, 0)], x_r[(r, 1)], x_r[(r, 2)]]).collect();
+        Search::Joint(Box::new(Joint {
             tree: ImmutableKdTree::new_from_slice(&coordinates),
-            coordinates: &coordinates,
-        }
+            coordinates,
+            scale,
+            test_rows: phi_t.transpose().to_owned(),
+        }))
     } else if n_r > params.samples {
         Search::Sampled(reference.sample_cells(params.samples)?)
     } else {
         Search::Spectral
     };
     // The test basis weighted by its mass (for the functional map and the deformation's
-    // projection), and both shapes' spectral rows as contiguous columns (`k × n`) for the search.
+    // projection), and the reference's spectral rows as contiguous columns (`k × n_r`).
     let kw = k.max(kd);
     let phi_w = basis(tb, kw);
     let weighted = Mat::from_fn(n_t, kw, |v, j| tb.mass[v] * phi_w[(v, j)]);
     let phi_d = basis(tb, kd);
-    let test_rows = phi_t.transpose().to_owned();
     let mut reference_rows = Mat::<f64>::zeros(k, n_r);
     let mut current = map.to_vec();
     for _ in 0..params.rounds {
@@ -204,11 +204,10 @@ pub fn refine_extrinsic(
         // The rows of Φ_R Cᵀ, as the columns of C Φ_Rᵀ.
         matmul(reference_rows.as_mut(), Accum::Replace, c, phi_r.transpose(), 1.0, Par::rayon(0));
         current = match &search {
-            Search::Joint { scale, tree, coordinates } => {
+            Search::Joint(joint) => {
                 let moved: Vec<[f64; 3]> =
                     (0..n_t).map(|v| [deformed[(v, 0)], deformed[(v, 1)], deformed[(v, 2)]]).collect();
-                let reference = Joint { rows: reference_rows.as_ref(), coordinates, tree, scale: *scale };
-                nearest_joint(test_rows.as_ref(), &moved, &reference, &current)
+                nearest_joint(joint, reference_rows.as_ref(), &moved, &current)
             }
             Search::Spectral => nearest_rows(phi_t, reference_rows.transpose()),
             Search::Sampled(cells) => {
@@ -225,19 +224,19 @@ pub fn refine_extrinsic(
 
 /// How step 3 searches: in the joint space, bounded by the coordinates (`weight` > 0); or, on
 /// the spectral rows alone, among every reference vertex or samples first.
-enum Search<'a> {
-    Joint { scale: f64, tree: ImmutableKdTree<f64, u32, 3, 32>, coordinates: &'a [[f64; 3]] },
+enum Search {
+    Joint(Box<Joint>),
     Spectral,
     Sampled(std::sync::Arc<SampleCells>),
 }
 
-/// The reference side of the joint search: spectral rows (column `r` of `rows`, `k × n_r`),
-/// coordinates (indexed by `tree`) and the coordinates' weight.
-struct Joint<'a> {
-    rows: MatRef<'a, f64>,
-    coordinates: &'a [[f64; 3]],
-    tree: &'a ImmutableKdTree<f64, u32, 3, 32>,
+/// What the joint search keeps across rounds: the reference's coordinates (indexed by `tree`),
+/// their weight `scale`, and the test shape's spectral rows (column `m`: vertex `m`, `k × n_t`).
+struct Joint {
+    coordinates: Vec<[f64; 3]>,
+    tree: ImmutableKdTree<f64, u32, 3, 32>,
     scale: f64,
+    test_rows: Mat<f64>,
 }
 
 /// Column `i` of an owned matrix as a slice.
@@ -245,31 +244,32 @@ fn column(m: MatRef<'_, f64>, i: usize) -> &[f64] {
     m.col(i).try_as_col_major().expect("an owned matrix's columns are contiguous").as_slice()
 }
 
-/// For each test vertex `m` (spectral row: column `m` of `test_rows`, `k × n_t`; coordinates
-/// `test_xyz[m]`), the reference vertex `r` nearest in `‖φ_m − φ_r‖² + scale² ‖x_m − x_r‖²`
+/// For each test vertex `m` (spectral row: column `m` of `joint.test_rows`; coordinates
+/// `test_xyz[m]`), the reference vertex `r` (spectral row: column `r` of `reference_rows`,
+/// `k × n_r`) nearest in `‖φ_m − φ_r‖² + scale² ‖x_m − x_r‖²`
 /// (the lower index on ties), exactly: among the vertices whose coordinates alone are no farther
 /// than the nearer of `hint[m]` and the vertex nearest in space (see the module documentation).
 fn nearest_joint(
-    test_rows: MatRef<'_, f64>,
+    joint: &Joint,
+    reference_rows: MatRef<'_, f64>,
     test_xyz: &[[f64; 3]],
-    reference: &Joint<'_>,
     hint: &[usize],
 ) -> Vec<usize> {
     use rayon::prelude::*;
-    let s2 = reference.scale * reference.scale;
+    let (s2, test_rows) = (joint.scale * joint.scale, joint.test_rows.as_ref());
     (0..test_rows.ncols())
         .into_par_iter()
         .map(|m| {
             let (q, y) = (column(test_rows, m), &test_xyz[m]);
-            let joint = |r: usize, d2: f64| s2 * d2 + squared_distance(q, column(reference.rows, r));
-            let p = reference.coordinates[hint[m]];
+            let distance = |r: usize, d2: f64| s2 * d2 + squared_distance(q, column(reference_rows, r));
+            let p = joint.coordinates[hint[m]];
             let nearer =
                 |a: (f64, usize), b: (f64, usize)| if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) { b } else { a };
-            let mut best = (joint(hint[m], squared_distance(&p, y)), hint[m]);
-            let near = reference.tree.nearest_one::<SquaredEuclidean>(y);
-            best = nearer(best, (joint(near.item as usize, near.distance), near.item as usize));
-            for n in reference.tree.within_unsorted::<SquaredEuclidean>(y, best.0 / s2) {
-                best = nearer(best, (joint(n.item as usize, n.distance), n.item as usize));
+            let mut best = (distance(hint[m], squared_distance(&p, y)), hint[m]);
+            let near = joint.tree.nearest_one::<SquaredEuclidean>(y);
+            best = nearer(best, (distance(near.item as usize, near.distance), near.item as usize));
+            for n in joint.tree.within_unsorted::<SquaredEuclidean>(y, best.0 / s2) {
+                best = nearer(best, (distance(n.item as usize, n.distance), n.item as usize));
             }
             best.1
         })
@@ -291,12 +291,15 @@ mod tests {
         let xyz =
             |m: &Mat<f64>| (0..m.nrows()).map(|i| [m[(i, 0)], m[(i, 1)], m[(i, 2)]]).collect::<Vec<_>>();
         let (test_xyz, reference_xyz) = (xyz(&uniform(n_t, 3)), xyz(&uniform(n_r, 3)));
-        let tree = ImmutableKdTree::new_from_slice(&reference_xyz);
-        let reference =
-            Joint { rows: reference_rows.as_ref(), coordinates: &reference_xyz, tree: &tree, scale };
+        let joint = Joint {
+            tree: ImmutableKdTree::new_from_slice(&reference_xyz),
+            coordinates: reference_xyz.clone(),
+            scale,
+            test_rows: test_rows.clone(),
+        };
         // Hints anywhere, most of them far from the answer.
         let hint: Vec<usize> = (0..n_t).map(|m| (m * 7919) % n_r).collect();
-        let found = nearest_joint(test_rows.as_ref(), &test_xyz, &reference, &hint);
+        let found = nearest_joint(&joint, reference_rows.as_ref(), &test_xyz, &hint);
         for m in 0..n_t {
             let d = |r: usize| {
                 squared_distance(column(test_rows.as_ref(), m), column(reference_rows.as_ref(), r))
