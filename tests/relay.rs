@@ -10,7 +10,7 @@ use shapeforest::{
     },
     forest::{Prediction, RandomForest},
     mesh::Mesh,
-    regularizer::{nearest_pose, through_labels, RegularizerError},
+    regularizer::{nearest_pose, through_labels, RegularizerError, RegularizerParams, ZoomOutParams},
     synth::{creature_family, CreatureParams},
 };
 
@@ -146,6 +146,39 @@ fn relayed_and_voted_maps_are_carried_to_the_reference_and_do_not_lose_accuracy(
     let (d, _) = with.summary(Method::ForestRegularized);
     println!("voted {c:?}\nnearest pose alone {d:?}");
     assert!(c.within_005 >= d.within_005 - 0.02, "voted {c:?} vs nearest pose {d:?}");
+}
+
+#[test]
+fn a_refined_map_onto_a_relay_is_carried_and_settled_onto_the_reference() {
+    // ZoomOut with its settling round and local rigid fit: a map onto a relay is refined there,
+    // carried through the labels and settled onto the reference (not onto the relay first,
+    // `RegularizerParams::unsettled`); it must stay as good as the grown map it came from.
+    let fam = family(7);
+    let shapes = common::protocol_shapes(&fam);
+    let params = ProtocolParams {
+        n_train: 5,
+        max_tests: Some(3),
+        eval_points: 300,
+        skip_baseline: true,
+        forest: RandomForest::params().n_trees(6).seed(5),
+        relay: true,
+        regularizer: RegularizerParams { zoomout: Some(ZoomOutParams::default()), ..Default::default() },
+        ..ProtocolParams::default()
+    };
+    let report = run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap();
+    let relayed: Vec<_> = report.tests.iter().filter(|t| t.relay.is_some()).collect();
+    assert!(!relayed.is_empty(), "no test was regularised onto a relay");
+    let within = |e: &[f64], d: f64| e.iter().filter(|&&x| x <= d).count() as f64 / e.len() as f64;
+    for t in relayed {
+        let grown = t.methods.iter().find(|m| m.method == Method::ForestRegularized).unwrap();
+        let refined = t.methods.iter().find(|m| m.method == Method::ForestZoomOut).unwrap();
+        assert!(refined.map.iter().all(|&r| r < fam.shapes[t.reference].n_vertices()));
+        let (g, r) = (within(&grown.strict, 0.05), within(&refined.strict, 0.05));
+        println!("s{} via s{}: grown {g:.3}, refined {r:.3} within 0.05", t.test, t.relay.unwrap());
+        assert!(r >= g - 0.02, "s{}: refined {r} against grown {g} within 0.05", t.test);
+        let r10 = within(&refined.strict, 0.1);
+        assert!(r10 > 0.8, "s{}: refined map {r10} within 0.1", t.test);
+    }
 }
 
 #[test]

@@ -516,8 +516,12 @@ pub fn run(args: MatchArgs) -> Result<()> {
             // Onto each shape, carried to the reference; the first voted with the others.
             // With `read`: the share of the scan's area where the map onto the shape (before it
             // is carried to the reference) reads as mirrored.
+            // A map onto a relay is carried and then settled onto the reference (as `eval`
+            // does): not settled onto the relay first.
+            let unsettled = reg.unsettled();
             let onto_map = |onto: &OntoShape<'_>, read: bool| -> Result<(DenseMap, Option<f64>)> {
-                let dense = regularize(&test, &onto.prepared, &prediction, onto.table, &reg)?;
+                let onto_reg = if settles && onto.to_reference.is_some() { &unsettled } else { &reg };
+                let dense = regularize(&test, &onto.prepared, &prediction, onto.table, onto_reg)?;
                 let share = read
                     .then(|| reversed_area(&test.mesh, &onto.prepared.mesh, &dense.map, UNFLIP_THRESHOLD));
                 let dense = match &onto.to_reference {

@@ -828,6 +828,7 @@ pub fn run_protocol(
         // A prediction regularised onto a target, as a map onto the reference, and with `read`
         // the share of the scan's area where the map onto the target reads as mirrored.
         let threshold = params.regularizer.unflip.unwrap_or(UNFLIP_THRESHOLD);
+        let unsettled = params.regularizer.unsettled();
         let regularize_onto = |relays: &[((usize, usize), PreparedShape, Vec<usize>)],
                                target: usize,
                                p: &Prediction,
@@ -843,8 +844,8 @@ pub fn run_protocol(
             }
             let (_, prepared, to_reference) =
                 relays.iter().find(|r| r.0 == (target, reference)).expect("prepared above");
-            let dense =
-                regularize(&test_prepared, prepared, p, Some(&shapes[target].truth), &params.regularizer)?;
+            // Carried, then settled onto the reference: not settled onto the relay first.
+            let dense = regularize(&test_prepared, prepared, p, Some(&shapes[target].truth), &unsettled)?;
             let share = reversed(prepared, &dense);
             Ok((dense.carried(to_reference)?, share))
         };

@@ -616,6 +616,17 @@ impl Default for RegularizerParams {
     }
 }
 
+impl RegularizerParams {
+    /// These settings without the refinement's last steps, ZoomOut's settling round and local
+    /// rigid fit ([`ZoomOutParams::settle`], [`ZoomOutParams::rigid`]): for a map onto a relay
+    /// that is carried to the reference and settled there ([`DenseMap::carried`],
+    /// [`DenseMap::settled`]), which runs the same steps onto the reference.
+    pub fn unsettled(&self) -> Self {
+        let zoomout = self.zoomout.map(|z| ZoomOutParams { settle: None, rigid: None, ..z });
+        Self { zoomout, ..self.clone() }
+    }
+}
+
 /// A matched pair of vertices with its confidence.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct VertexMatch {
