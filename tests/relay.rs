@@ -98,21 +98,25 @@ fn through_labels_places_unlabelled_vertices_between_their_labelled_neighbours()
     assert!(through_labels(mesh, &labelled, mesh, &identity).is_err());
 }
 
+/// The protocol of the tests below on `family(7)`: 5 training shapes, the first `tests` test
+/// shapes, 300 evaluation points, no baseline, a forest of `trees` trees.
+fn small_protocol(tests: usize, trees: usize) -> ProtocolParams {
+    ProtocolParams {
+        n_train: 5,
+        max_tests: Some(tests),
+        eval_points: 300,
+        skip_baseline: true,
+        forest: RandomForest::params().n_trees(trees).seed(5),
+        ..ProtocolParams::default()
+    }
+}
+
 #[test]
 fn relayed_and_voted_maps_are_carried_to_the_reference_and_do_not_lose_accuracy() {
     let fam = family(7);
     let shapes = common::protocol_shapes(&fam);
     let run = |relay: bool, relay_votes: usize| {
-        let params = ProtocolParams {
-            n_train: 5,
-            max_tests: Some(3),
-            eval_points: 300,
-            skip_baseline: true,
-            forest: RandomForest::params().n_trees(6).seed(5),
-            relay,
-            relay_votes,
-            ..ProtocolParams::default()
-        };
+        let params = ProtocolParams { relay, relay_votes, ..small_protocol(3, 6) };
         run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap()
     };
     let (with, without, voted) = (run(true, 1), run(false, 1), run(true, 3));
@@ -156,14 +160,9 @@ fn a_refined_map_onto_a_relay_is_carried_and_settled_onto_the_reference() {
     let fam = family(7);
     let shapes = common::protocol_shapes(&fam);
     let params = ProtocolParams {
-        n_train: 5,
-        max_tests: Some(3),
-        eval_points: 300,
-        skip_baseline: true,
-        forest: RandomForest::params().n_trees(6).seed(5),
         relay: true,
         regularizer: RegularizerParams { zoomout: Some(ZoomOutParams::default()), ..Default::default() },
-        ..ProtocolParams::default()
+        ..small_protocol(3, 6)
     };
     let report = run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap();
     let relayed: Vec<_> = report.tests.iter().filter(|t| t.relay.is_some()).collect();
@@ -186,15 +185,7 @@ fn a_map_that_reads_as_mirrored_is_voted_with_the_next_nearest_poses() {
     let fam = family(7);
     let shapes = common::protocol_shapes(&fam);
     let run = |trees: usize, doubt: Option<f64>| {
-        let params = ProtocolParams {
-            n_train: 5,
-            max_tests: Some(4),
-            eval_points: 300,
-            skip_baseline: true,
-            forest: RandomForest::params().n_trees(trees).seed(5),
-            doubt,
-            ..ProtocolParams::default()
-        };
+        let params = ProtocolParams { doubt, ..small_protocol(4, trees) };
         run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap()
     };
     // Good maps of the clean family are not doubted: no extra cost.
