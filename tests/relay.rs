@@ -218,6 +218,37 @@ fn a_map_that_reads_as_mirrored_is_voted_with_the_next_nearest_poses() {
     assert!(c.within_005 >= d.within_005 - 0.02, "voted on doubt {c:?} vs never {d:?}");
 }
 
+#[test]
+fn voted_maps_refined_with_the_voters_settings_keep_their_accuracy() {
+    // With ZoomOut, maps that are voted (several votes asked for, or a doubted map's) are
+    // refined without the settling round, the local rigid fit and the choice's sharpening map
+    // (`RegularizerParams::voter`): the vote is settled onto the reference once. The voted,
+    // refined maps must stay valid and as good as the nearest pose's refined map alone.
+    let fam = family(7);
+    let shapes = common::protocol_shapes(&fam);
+    let run = |relay_votes: usize| {
+        let params = ProtocolParams {
+            relay: true,
+            relay_votes,
+            regularizer: RegularizerParams { zoomout: Some(ZoomOutParams::default()), ..Default::default() },
+            ..small_protocol(3, 6)
+        };
+        run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap()
+    };
+    let (one, voted) = (run(1), run(3));
+    for t in &voted.tests {
+        assert_eq!(t.votes.len(), 2, "s{}: {:?}", t.test, t.votes);
+        let refined = t.errors(Method::ForestZoomOut).expect("refined map");
+        assert_eq!(refined.map.len(), fam.shapes[t.test].n_vertices());
+        assert!(refined.map.iter().all(|&r| r < fam.shapes[t.reference].n_vertices()));
+    }
+    let (c, _) = voted.summary(Method::ForestZoomOut);
+    let (d, _) = one.summary(Method::ForestZoomOut);
+    println!("refined, three votes {c:?}\nthe nearest pose alone {d:?}");
+    assert!(c.within_005 >= d.within_005 - 0.02, "voted {c:?} vs the nearest pose alone {d:?}");
+    assert!(c.within_010 > 0.8, "voted refined maps {c:?}");
+}
+
 /// The files of a `match` with relays, in `dir`: `m.sfm`, a model of shapes 1–4 of a five-shape
 /// family (shape 1 the reference, `ref.off`), shapes 2 and 3 as `s2.off` and `s3.off`, and the
 /// identity label map `labels.txt` (returned, with the family).

@@ -517,19 +517,26 @@ pub fn run(args: MatchArgs) -> Result<()> {
             // With `read`: the share of the scan's area where the map onto the shape (before it
             // is carried to the reference) reads as mirrored.
             // A map onto a relay is carried and then settled onto the reference (as `eval`
-            // does): not settled onto the relay first.
-            let unsettled = reg.unsettled();
-            let onto_map = |onto: &OntoShape<'_>, read: bool| -> Result<(DenseMap, Option<f64>)> {
-                let onto_reg = if settles && onto.to_reference.is_some() { &unsettled } else { &reg };
-                let dense = regularize(&test, &onto.prepared, &prediction, onto.table, onto_reg)?;
-                let share = read
-                    .then(|| reversed_area(&test.mesh, &onto.prepared.mesh, &dense.map, UNFLIP_THRESHOLD));
-                let dense = match &onto.to_reference {
-                    Some(t) => dense.carried(t)?,
-                    None => dense,
+            // does): not settled onto the relay first. A voter (a map voted with others, then
+            // settled) gets the voters' settings.
+            let (unsettled, voter_reg) = (reg.unsettled(), reg.voter());
+            let onto_map =
+                |onto: &OntoShape<'_>, read: bool, voter: bool| -> Result<(DenseMap, Option<f64>)> {
+                    let onto_reg = match (settles, voter, onto.to_reference.is_some()) {
+                        (true, true, _) => &voter_reg,
+                        (true, false, true) => &unsettled,
+                        _ => &reg,
+                    };
+                    let dense = regularize(&test, &onto.prepared, &prediction, onto.table, onto_reg)?;
+                    let share = read.then(|| {
+                        reversed_area(&test.mesh, &onto.prepared.mesh, &dense.map, UNFLIP_THRESHOLD)
+                    });
+                    let dense = match &onto.to_reference {
+                        Some(t) => dense.carried(t)?,
+                        None => dense,
+                    };
+                    Ok((dense, share))
                 };
-                Ok((dense, share))
-            };
             // A carried or voted map, settled onto the reference (among `shapes`, or `spare`).
             let settle = |dense: DenseMap,
                           shapes: &[OntoShape<'_>],
@@ -546,12 +553,12 @@ pub fn run(args: MatchArgs) -> Result<()> {
                 // Independent regularisations, side by side.
                 let others = shapes[1..]
                     .par_iter()
-                    .map(|o| onto_map(o, false).map(|(d, _)| d))
+                    .map(|o| onto_map(o, false, true).map(|(d, _)| d))
                     .collect::<Result<Vec<_>>>()?;
                 settle(first.voted(&others, &reference)?, shapes, spare, true)
             };
             let one_vote = onto_shapes.len() == 1;
-            let (first, share) = onto_map(&onto_shapes[0], one_vote)?;
+            let (first, share) = onto_map(&onto_shapes[0], one_vote, !one_vote)?;
             reversed = share;
             let mirrored = doubt.is_some_and(|limit| share.is_some_and(|r| r > limit));
             // A single view's map onto the reference that reads poorly oriented: the view
@@ -592,7 +599,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
                         continue;
                     }
                     let onto = &onto_shapes[onto_shapes.len() - 1];
-                    let (map, _) = onto_map(onto, false)?;
+                    let (map, _) = onto_map(onto, false, false)?;
                     let map =
                         settle(map, &onto_shapes, settle_reference.as_ref(), onto.to_reference.is_some())?;
                     let s = view_orientation(&test.mesh, &reference, &map.map);

@@ -826,26 +826,30 @@ pub fn run_protocol(
         };
         prepare_relays(&targets, &mut prepared_relays, &mut timings)?;
         // A prediction regularised onto a target, as a map onto the reference, and with `read`
-        // the share of the scan's area where the map onto the target reads as mirrored.
+        // the share of the scan's area where the map onto the target reads as mirrored. A voter
+        // (a map voted with others, then settled) gets the voters' settings.
         let threshold = params.regularizer.unflip.unwrap_or(UNFLIP_THRESHOLD);
-        let unsettled = params.regularizer.unsettled();
+        let (unsettled, voter_params) = (params.regularizer.unsettled(), params.regularizer.voter());
         let regularize_onto = |relays: &[((usize, usize), PreparedShape, Vec<usize>)],
                                target: usize,
                                p: &Prediction,
-                               read: bool|
+                               read: bool,
+                               voter: bool|
          -> Result<(DenseMap, Option<f64>), EvalError> {
             let reversed = |onto: &PreparedShape, d: &DenseMap| {
                 read.then(|| reversed_area(&test_prepared.mesh, &onto.mesh, &d.map, threshold))
             };
             if target == reference {
-                let dense = regularize(&test_prepared, ref_prepared, p, Some(table), &params.regularizer)?;
+                let reg = if voter { &voter_params } else { &params.regularizer };
+                let dense = regularize(&test_prepared, ref_prepared, p, Some(table), reg)?;
                 let share = reversed(ref_prepared, &dense);
                 return Ok((dense, share));
             }
             let (_, prepared, to_reference) =
                 relays.iter().find(|r| r.0 == (target, reference)).expect("prepared above");
             // Carried, then settled onto the reference: not settled onto the relay first.
-            let dense = regularize(&test_prepared, prepared, p, Some(&shapes[target].truth), &unsettled)?;
+            let reg = if voter { &voter_params } else { &unsettled };
+            let dense = regularize(&test_prepared, prepared, p, Some(&shapes[target].truth), reg)?;
             let share = reversed(prepared, &dense);
             Ok((dense.carried(to_reference)?, share))
         };
@@ -859,19 +863,19 @@ pub fn run_protocol(
         };
         // A prediction regularised onto one target as a settled map onto the reference.
         let settled_onto = |relays: &[_], target: usize, p: &Prediction| -> Result<DenseMap, EvalError> {
-            settle(regularize_onto(relays, target, p, false)?.0, target != reference)
+            settle(regularize_onto(relays, target, p, false, false)?.0, target != reference)
         };
         // Maps onto the other targets, voted with the first.
         let voted = |first: DenseMap, others: &[usize], relays: &[_]| -> Result<DenseMap, EvalError> {
             // Independent regularisations, side by side.
             let others: Vec<DenseMap> = others
                 .par_iter()
-                .map(|&t| regularize_onto(relays, t, &prediction, false).map(|(d, _)| d))
+                .map(|&t| regularize_onto(relays, t, &prediction, false, true).map(|(d, _)| d))
                 .collect::<Result<_, _>>()?;
             settle(first.voted(&others, &ref_prepared.mesh)?, true)
         };
         let one_vote = targets.len() == 1;
-        let (first, reversed) = regularize_onto(&prepared_relays, target, &prediction, one_vote)?;
+        let (first, reversed) = regularize_onto(&prepared_relays, target, &prediction, one_vote, !one_vote)?;
         let (prediction_mirrored, alternative_kept) = (first.prediction_mirrored, first.alternative_kept);
         let mut tried = Vec::new();
         let dense = if !one_vote {

@@ -625,6 +625,33 @@ impl RegularizerParams {
         let zoomout = self.zoomout.map(|z| ZoomOutParams { settle: None, rigid: None, ..z });
         Self { zoomout, ..self.clone() }
     }
+
+    /// These settings for a map that is voted with others and then settled onto the reference
+    /// ([`DenseMap::voted`], [`DenseMap::settled`]): [`Self::unsettled`], and where the settling
+    /// round is on, the choice after ZoomOut without its third map, the extrinsic step of the
+    /// grown map ([`MapSelection::grown_extrinsic`]): that map only sharpens the chosen one where
+    /// it lies close, which the settling round of the vote does too. SCAPE scans with holes
+    /// whose map was doubted and voted took 12–17 % less time so, at the same accuracy (README
+    /// "Relay votes").
+    ///
+    /// ```
+    /// use shapeforest::regularizer::{RegularizerParams, ZoomOutParams};
+    /// let params = RegularizerParams { zoomout: Some(ZoomOutParams::default()), ..Default::default() };
+    /// let z = params.voter().zoomout.unwrap();
+    /// assert!(z.settle.is_none() && z.rigid.is_none());
+    /// assert!(!z.select.unwrap().grown_extrinsic);
+    /// // Without the settling round, nothing takes the third map's place: it stays.
+    /// let unsettled = params.unsettled();
+    /// assert!(unsettled.voter().zoomout.unwrap().select.unwrap().grown_extrinsic);
+    /// ```
+    pub fn voter(&self) -> Self {
+        let mut voter = self.unsettled();
+        let settled = self.zoomout.is_some_and(|z| z.settle.is_some() && z.extrinsic.is_some());
+        if let Some(z) = voter.zoomout.as_mut().filter(|_| settled) {
+            z.select = z.select.map(|s| MapSelection { grown_extrinsic: false, ..s });
+        }
+        voter
+    }
 }
 
 /// A matched pair of vertices with its confidence.
