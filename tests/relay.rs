@@ -221,9 +221,10 @@ fn a_map_that_reads_as_mirrored_is_voted_with_the_next_nearest_poses() {
 #[test]
 fn voted_maps_refined_with_the_voters_settings_keep_their_accuracy() {
     // With ZoomOut, maps that are voted (several votes asked for, or a doubted map's) are
-    // refined without the settling round, the local rigid fit and the choice's sharpening map
-    // (`RegularizerParams::voter`): the vote is settled onto the reference once. The voted,
-    // refined maps must stay valid and as good as the nearest pose's refined map alone.
+    // refined without the settling round, the local rigid fit and the choice's sharpening map,
+    // and more coarsely (`RegularizerParams::voter`): the vote is settled onto the reference
+    // once. The voted, refined maps must stay valid and as good as the nearest pose's refined
+    // map alone.
     let fam = family(7);
     let shapes = common::protocol_shapes(&fam);
     let run = |relay_votes: usize| {

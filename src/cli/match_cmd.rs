@@ -519,15 +519,11 @@ pub fn run(args: MatchArgs) -> Result<()> {
             // A map onto a relay is carried and then settled onto the reference (as `eval`
             // does): not settled onto the relay first. A voter (a map voted with others, then
             // settled) gets the voters' settings.
-            let (unsettled, voter_reg) = (reg.unsettled(), reg.voter());
             let onto_map =
                 |onto: &OntoShape<'_>, read: bool, voter: bool| -> Result<(DenseMap, Option<f64>)> {
-                    let onto_reg = match (settles, voter, onto.to_reference.is_some()) {
-                        (true, true, _) => &voter_reg,
-                        (true, false, true) => &unsettled,
-                        _ => &reg,
-                    };
-                    let dense = regularize(&test, &onto.prepared, &prediction, onto.table, onto_reg)?;
+                    // (Without a settling afterwards, every map is refined in full.)
+                    let onto_reg = reg.for_map(settles && onto.to_reference.is_some(), settles && voter);
+                    let dense = regularize(&test, &onto.prepared, &prediction, onto.table, &onto_reg)?;
                     let share = read.then(|| {
                         reversed_area(&test.mesh, &onto.prepared.mesh, &dense.map, UNFLIP_THRESHOLD)
                     });

@@ -829,7 +829,6 @@ pub fn run_protocol(
         // the share of the scan's area where the map onto the target reads as mirrored. A voter
         // (a map voted with others, then settled) gets the voters' settings.
         let threshold = params.regularizer.unflip.unwrap_or(UNFLIP_THRESHOLD);
-        let (unsettled, voter_params) = (params.regularizer.unsettled(), params.regularizer.voter());
         let regularize_onto = |relays: &[((usize, usize), PreparedShape, Vec<usize>)],
                                target: usize,
                                p: &Prediction,
@@ -840,16 +839,16 @@ pub fn run_protocol(
                 read.then(|| reversed_area(&test_prepared.mesh, &onto.mesh, &d.map, threshold))
             };
             if target == reference {
-                let reg = if voter { &voter_params } else { &params.regularizer };
-                let dense = regularize(&test_prepared, ref_prepared, p, Some(table), reg)?;
+                let reg = params.regularizer.for_map(false, voter);
+                let dense = regularize(&test_prepared, ref_prepared, p, Some(table), &reg)?;
                 let share = reversed(ref_prepared, &dense);
                 return Ok((dense, share));
             }
             let (_, prepared, to_reference) =
                 relays.iter().find(|r| r.0 == (target, reference)).expect("prepared above");
             // Carried, then settled onto the reference: not settled onto the relay first.
-            let reg = if voter { &voter_params } else { &unsettled };
-            let dense = regularize(&test_prepared, prepared, p, Some(&shapes[target].truth), reg)?;
+            let reg = params.regularizer.for_map(true, voter);
+            let dense = regularize(&test_prepared, prepared, p, Some(&shapes[target].truth), &reg)?;
             let share = reversed(prepared, &dense);
             Ok((dense.carried(to_reference)?, share))
         };

@@ -659,6 +659,25 @@ impl RegularizerParams {
         }
         voter
     }
+
+    /// The settings for a map by what happens to it next: voted with others and then settled
+    /// ([`Self::voter`]); carried to the reference from a relay and settled there
+    /// ([`Self::unsettled`]); or neither (these settings).
+    ///
+    /// ```
+    /// use shapeforest::regularizer::{RegularizerParams, ZoomOutParams};
+    /// let params = RegularizerParams { zoomout: Some(ZoomOutParams::default()), ..Default::default() };
+    /// assert_eq!(params.for_map(false, false), params);
+    /// assert_eq!(params.for_map(true, false), params.unsettled());
+    /// assert_eq!(params.for_map(true, true), params.voter());
+    /// ```
+    pub fn for_map(&self, carried: bool, voted: bool) -> Self {
+        match (carried, voted) {
+            (_, true) => self.voter(),
+            (true, false) => self.unsettled(),
+            (false, false) => self.clone(),
+        }
+    }
 }
 
 /// A matched pair of vertices with its confidence.
