@@ -111,6 +111,17 @@ fn small_protocol(tests: usize, trees: usize) -> ProtocolParams {
     }
 }
 
+/// [`small_protocol`] of 3 tests and 6 trees, regularised onto relays with `relay_votes` votes
+/// and refined by ZoomOut (its settling round and local rigid fit included).
+fn refined_protocol(relay_votes: usize) -> ProtocolParams {
+    ProtocolParams {
+        relay: true,
+        relay_votes,
+        regularizer: RegularizerParams { zoomout: Some(ZoomOutParams::default()), ..Default::default() },
+        ..small_protocol(3, 6)
+    }
+}
+
 #[test]
 fn relayed_and_voted_maps_are_carried_to_the_reference_and_do_not_lose_accuracy() {
     let fam = family(7);
@@ -159,12 +170,7 @@ fn a_refined_map_onto_a_relay_is_carried_and_settled_onto_the_reference() {
     // `RegularizerParams::unsettled`); it must stay as good as the grown map it came from.
     let fam = family(7);
     let shapes = common::protocol_shapes(&fam);
-    let params = ProtocolParams {
-        relay: true,
-        regularizer: RegularizerParams { zoomout: Some(ZoomOutParams::default()), ..Default::default() },
-        ..small_protocol(3, 6)
-    };
-    let report = run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap();
+    let report = run_protocol(&shapes, Some(&fam.symmetry), &refined_protocol(1), None).unwrap();
     let relayed: Vec<_> = report.tests.iter().filter(|t| t.relay.is_some()).collect();
     assert!(!relayed.is_empty(), "no test was regularised onto a relay");
     for t in relayed {
@@ -228,13 +234,7 @@ fn voted_maps_refined_with_the_voters_settings_keep_their_accuracy() {
     let fam = family(7);
     let shapes = common::protocol_shapes(&fam);
     let run = |relay_votes: usize| {
-        let params = ProtocolParams {
-            relay: true,
-            relay_votes,
-            regularizer: RegularizerParams { zoomout: Some(ZoomOutParams::default()), ..Default::default() },
-            ..small_protocol(3, 6)
-        };
-        run_protocol(&shapes, Some(&fam.symmetry), &params, None).unwrap()
+        run_protocol(&shapes, Some(&fam.symmetry), &refined_protocol(relay_votes), None).unwrap()
     };
     let (one, voted) = (run(1), run(3));
     for t in &voted.tests {

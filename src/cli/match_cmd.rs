@@ -464,7 +464,7 @@ pub fn run(args: MatchArgs) -> Result<()> {
     // which needs the reference prepared when it is not among the shapes regularised onto.
     let settles = args.to.is_none()
         && (ontos.len() > 1 || ontos[0].is_some() || doubt.is_some() || doubt_view.is_some())
-        && reg.zoomout.is_some_and(|z| (z.settle.is_some() && z.extrinsic.is_some()) || z.rigid.is_some());
+        && reg.zoomout.is_some_and(|z| z.settles() || z.rigid.is_some());
     // (Prepared as a shape to regularise onto, so that a doubted map whose voters include the
     // reference takes it instead of preparing it again.)
     let mut settle_reference = if settles && ontos.iter().all(Option::is_some) {

@@ -313,6 +313,11 @@ impl ZoomOutParams {
         Some(LocalRigidParams::default())
     }
 
+    /// Whether the settling round runs ([`settle_map`]: it needs the extrinsic step on too).
+    pub fn settles(&self) -> bool {
+        self.settle.is_some() && self.extrinsic.is_some()
+    }
+
     /// The schedule `(k_start, k_final)` actually used with bases of `available` eigenpairs:
     /// `k_final` at most `available`, `k_start` at most half of that (and at least 1).
     ///
@@ -650,7 +655,7 @@ impl RegularizerParams {
     /// ```
     pub fn voter(&self) -> Self {
         let mut voter = self.unsettled();
-        let settled = self.zoomout.is_some_and(|z| z.settle.is_some() && z.extrinsic.is_some());
+        let settled = self.zoomout.is_some_and(|z| z.settles());
         if let Some(z) = voter.zoomout.as_mut().filter(|_| settled) {
             z.select = z.select.map(|s| MapSelection { grown_extrinsic: false, ..s });
             z.samples = (z.samples / 2).max(1);
