@@ -15,7 +15,10 @@ use std::{
 };
 
 use common::{daemon::*, nats::NatsServer};
-use shapeforest::pipeline::nats::{model_sync, Nats, NatsSettings};
+use shapeforest::{
+    pipeline::nats::{model_sync, Nats, NatsSettings},
+    synth::{creature_family, CreatureParams},
+};
 
 /// The watch pipeline for workers: a short ack wait (a dead worker's job comes back in 2 s)
 /// and the given extra settings.
@@ -114,8 +117,14 @@ fn publish_model(p: &Path, url: &str, data: &Path) {
 
 /// Scans `first..first + n` of the test family, written into `dir`.
 fn scans(dir: &Path, first: usize, n: usize) -> Vec<PathBuf> {
+    scans_of(dir, first, n, VERTICES)
+}
+
+/// The same scans with about `vertices` vertices each.
+fn scans_of(dir: &Path, first: usize, n: usize, vertices: usize) -> Vec<PathBuf> {
     std::fs::create_dir_all(dir).unwrap();
-    let fam = family(first + n);
+    let params = CreatureParams { target_vertices: vertices, seed: 1, ..Default::default() };
+    let fam = creature_family(&params, first + n).unwrap();
     (first..first + n)
         .map(|i| {
             let p = dir.join(format!("scan-creature{i}.off"));
@@ -401,6 +410,40 @@ fn a_server_restart_in_a_burst_loses_nothing_and_doubles_nothing() {
     want.sort();
     assert_eq!(result_dirs(&out), want, "{}", server.log_text());
     assert_eq!(ledger(&out), 6);
+    w.stop();
+    r.stop();
+}
+
+#[test]
+fn jobs_in_flight_while_a_restarted_server_recovers_are_neither_rejected_nor_lost() {
+    let Some(Cluster { dir, mut server, url, data, p }) = Cluster::start("") else { return };
+    publish_model(&p, &url, &data);
+    let out = dir.path().join("out");
+    let mut w = worker(dir.path(), &p, &url, "w", None);
+    let mut r = results(dir.path(), &p, &url, &out);
+    // Scans large enough (12,000 vertices, most of a second each) that the worker is still
+    // busy when the server restarts, at the first result, and answers without JetStream for
+    // 3 s: the parts the worker stores, the messages it reads and the results' reads fail
+    // meanwhile. They are tried again once the server is back, not counted as the job's
+    // failures.
+    submit_files(&p, &url, &scans_of(&dir.path().join("in"), 6, 4, 12_000));
+    wait_for("a first result", &mut [&mut w, &mut r], || !result_dirs(&out).is_empty());
+    server.restart_late(Duration::from_secs(3));
+    wait_for("4 results or a rejection after the restart", &mut [&mut w, &mut r], || {
+        result_dirs(&out).len() + rejected_reports(&out).len() >= 4
+    });
+    thread::sleep(Duration::from_secs(2));
+    assert!(
+        rejected_reports(&out).is_empty(),
+        "rejected: {:?}\n{}\n----\n{}",
+        rejected_reports(&out),
+        w.log(),
+        r.log()
+    );
+    let mut want: Vec<String> = (6..10).map(|i| format!("scan-creature{i}")).collect();
+    want.sort();
+    assert_eq!(result_dirs(&out), want);
+    assert_eq!(ledger(&out), 4);
     w.stop();
     r.stop();
 }

@@ -67,10 +67,17 @@ impl NatsServer {
     }
 
     fn run(&mut self) {
+        self.run_with(true);
+    }
+
+    /// Starts the server, with or without JetStream.
+    fn run_with(&mut self, jetstream: bool) {
         let out = std::fs::OpenOptions::new().create(true).append(true).open(&self.log).unwrap();
-        let child = Command::new(&self.binary)
-            .args(["-js", "-sd"])
-            .arg(&self.store)
+        let mut command = Command::new(&self.binary);
+        if jetstream {
+            command.args(["-js", "-sd"]).arg(&self.store);
+        }
+        let child = command
             .args(["-a", "127.0.0.1", "-p", &self.port.to_string()])
             .stdin(Stdio::null())
             .stdout(out.try_clone().unwrap())
@@ -113,6 +120,17 @@ impl NatsServer {
 
     /// Starts it again on the same port and storage.
     pub fn restart(&mut self) {
+        self.stop();
+        self.run();
+    }
+
+    /// Starts it again, first for `for_` without JetStream: the clients reconnect at once,
+    /// and every JetStream request they make meanwhile fails ("no responders"), as while a
+    /// restarted server recovers its streams.
+    pub fn restart_late(&mut self, for_: Duration) {
+        self.stop();
+        self.run_with(false);
+        thread::sleep(for_);
         self.stop();
         self.run();
     }

@@ -301,6 +301,13 @@ impl Nats {
         Ok(Arc::try_unwrap(bytes).unwrap_or_else(|b| b.to_vec()))
     }
 
+    /// Whether the server answers a JetStream request now (an account query, at most 2 s).
+    /// Tells an error of the server being away (a restart, a lost connection: worth waiting
+    /// for) from one of the job itself.
+    pub async fn answers(&self) -> bool {
+        tokio::time::timeout(Duration::from_secs(2), self.js.query_account()).await.is_ok_and(|r| r.is_ok())
+    }
+
     /// Stream, subject and durable consumer of the edge `producer → consumer`.
     pub fn edge(&self, producer: &str, consumer: &str) -> Edge {
         let p = token(&self.settings.prefix);
@@ -609,16 +616,42 @@ struct NatsSender<C: Codec> {
 }
 
 impl<C: Codec> NatsSender<C> {
+    /// The message body: the value's parts stored in the object store. Retried while the
+    /// server is away (a failure then is not the job's); `None` at shutdown.
+    async fn body(&self, env: &Envelope<C::T>) -> Option<Result<C::Body, Failure>> {
+        let v = match &env.body {
+            Ok(v) => v,
+            Err(f) => return Some(Err(f.clone())),
+        };
+        let mut wait = Duration::from_millis(100);
+        loop {
+            match C::make_body(&self.nats, &env.job, v).await {
+                Ok(b) => return Some(Ok(b)),
+                Err(e) if !self.nats.answers().await => {
+                    tracing::warn!(
+                        job = env.job.id,
+                        "cannot store the job's parts ({e}); the server is away, retrying"
+                    );
+                    if self.shutdown.is_triggered() {
+                        return None;
+                    }
+                    tokio::time::sleep(wait).await;
+                    wait = (wait * 2).min(Duration::from_secs(2));
+                }
+                Err(e) => {
+                    return Some(Err(Failure {
+                        stage: self.edge.producer.clone(),
+                        kind: FailureKind::Internal,
+                        message: format!("cannot send the job on: {e}"),
+                    }))
+                }
+            }
+        }
+    }
+
     /// Encodes and publishes, retrying while the server is away; `Err` only at shutdown.
     async fn publish(&self, env: &mut Envelope<C::T>) -> Result<(), ()> {
-        let body = match &env.body {
-            Ok(v) => C::make_body(&self.nats, &env.job, v).await.map_err(|e| Failure {
-                stage: self.edge.producer.clone(),
-                kind: FailureKind::Internal,
-                message: format!("cannot send the job on: {e}"),
-            }),
-            Err(f) => Err(f.clone()),
-        };
+        let body = self.body(env).await.ok_or(())?;
         let content = match &body {
             Ok(b) => wire::content_key(&rmp_serde::to_vec(b).unwrap_or_default()),
             Err(f) => wire::content_key(f.message.as_bytes()),
@@ -890,7 +923,19 @@ impl<C: Codec> Receiver<C::T> for NatsReceiver<C> {
                     continue;
                 }
                 let tries = i64::from(self.nats.settings.max_deliver);
-                let read = match self.read(&msg).await {
+                let mut read = self.read(&msg).await;
+                // A message that cannot be read while the server is away (its parts are in the
+                // object store) is read again when it is back, not handed back: a restart
+                // must not use up its deliveries.
+                while read.is_err() && !self.nats.answers().await {
+                    tracing::warn!(stream = %self.edge.stream, "cannot read a message while the server is away; waiting");
+                    tokio::select! {
+                        _ = self.shutdown.triggered() => return None,
+                        _ = tokio::time::sleep(Duration::from_millis(500)) => {}
+                    }
+                    read = self.read(&msg).await;
+                }
+                let read = match read {
                     // Readable, but every worker that took it stopped before finishing it
                     // (a crash, kill -9, an out-of-memory kill): it is not tried again, and
                     // what reading it spooled goes now.
