@@ -331,10 +331,58 @@ impl RowMajor {
     }
 }
 
-/// `Σ_j (a_j − b_j)²`, summed in order of `j`.
+/// `Σ_j (a_j − b_j)²` over the shorter of the two. Short rows (coordinates) are summed in order
+/// of `j`; rows of [`DISTANCE_LANES`] entries or more (spectral rows: the inner loop of every
+/// point-map search) in that many interleaved partial sums added up in a fixed order, compiled
+/// for the widest vector unit the CPU has: the same operations in the same order on every path,
+/// so the same bits. One running sum would wait on each addition before the next.
 #[inline]
 pub(crate) fn squared_distance(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum()
+    if a.len().min(b.len()) < DISTANCE_LANES {
+        return a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum();
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F, checked just above.
+            return unsafe { squared_distance_avx512(a, b) };
+        }
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, checked just above.
+            return unsafe { squared_distance_avx2(a, b) };
+        }
+    }
+    squared_distance_lanes(a, b)
+}
+
+/// Partial sums of [`squared_distance`] on long rows.
+const DISTANCE_LANES: usize = 8;
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn squared_distance_avx512(a: &[f64], b: &[f64]) -> f64 {
+    squared_distance_lanes(a, b)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn squared_distance_avx2(a: &[f64], b: &[f64]) -> f64 {
+    squared_distance_lanes(a, b)
+}
+
+#[inline(always)]
+fn squared_distance_lanes(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (ac, bc) = (a[..n].chunks_exact(DISTANCE_LANES), b[..n].chunks_exact(DISTANCE_LANES));
+    let tail: f64 = ac.remainder().iter().zip(bc.remainder()).map(|(x, y)| (x - y).powi(2)).sum();
+    let mut acc = [0f64; DISTANCE_LANES];
+    for (xs, ys) in ac.zip(bc) {
+        for l in 0..DISTANCE_LANES {
+            let d = xs[l] - ys[l];
+            acc[l] += d * d;
+        }
+    }
+    ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7])) + tail
 }
 
 /// For each row of `queries` (`q × d`), the index of the nearest row of `points` (`p × d`) in
@@ -691,6 +739,27 @@ pub fn point_to_point_orthogonal(
 mod tests {
     use super::*;
     use crate::{spectral::dense_spectrum, synth::icosphere};
+
+    #[test]
+    fn squared_distances_match_the_plain_sum_with_the_same_bits_on_every_path() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for n in [0, 1, 3, 7, 8, 15, 16, 17, 100, 200, 203] {
+            let a: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let b: Vec<f64> = (0..n + 2).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let plain: f64 = a.iter().zip(&b).map(|(x, y)| (x - y).powi(2)).sum();
+            let d = squared_distance(&a, &b);
+            assert!((d - plain).abs() <= 1e-12 * plain.max(1.0), "{n}: {d} against {plain}");
+            assert_eq!(
+                squared_distance(&b, &a).to_bits(),
+                d.to_bits(),
+                "{n}: the shorter row sets the length"
+            );
+            if n >= DISTANCE_LANES {
+                assert_eq!(squared_distance_lanes(&a, &b).to_bits(), d.to_bits(), "{n}: the portable path");
+            }
+        }
+    }
 
     #[test]
     fn identity_map_gives_identity_fmap_and_back() {
