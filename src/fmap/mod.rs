@@ -331,15 +331,16 @@ impl RowMajor {
     }
 }
 
-/// `Σ_j (a_j − b_j)²` over the shorter of the two. Short rows (coordinates) are summed in order
-/// of `j`; rows of [`DISTANCE_LANES`] entries or more (spectral rows: the inner loop of every
-/// point-map search) in that many interleaved partial sums added up in a fixed order, compiled
-/// for the widest vector unit the CPU has: the same operations in the same order on every path,
-/// so the same bits. One running sum would wait on each addition before the next.
+/// `Σ_j (a_j − b_j)²` over the shorter of the two, in `f64` or `f32`. Short rows (coordinates)
+/// are summed in order of `j`; rows of [`DISTANCE_LANES`] entries or more (spectral rows: the
+/// inner loop of every point-map search) in that many interleaved partial sums added up in a
+/// fixed order, compiled for the widest vector unit the CPU has: the same operations in the same
+/// order on every path, so the same bits. One running sum would wait on each addition before
+/// the next.
 #[inline]
-pub(crate) fn squared_distance(a: &[f64], b: &[f64]) -> f64 {
+pub(crate) fn squared_distance<T: Real>(a: &[T], b: &[T]) -> T {
     if a.len().min(b.len()) < DISTANCE_LANES {
-        return a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum();
+        return a.iter().zip(b).map(|(&x, &y)| (x - y) * (x - y)).sum();
     }
     #[cfg(target_arch = "x86_64")]
     {
@@ -355,31 +356,45 @@ pub(crate) fn squared_distance(a: &[f64], b: &[f64]) -> f64 {
     squared_distance_lanes(a, b)
 }
 
+/// The floating-point types [`squared_distance`] sums.
+pub(crate) trait Real:
+    Copy
+    + Default
+    + std::ops::Add<Output = Self>
+    + std::ops::Sub<Output = Self>
+    + std::ops::Mul<Output = Self>
+    + std::iter::Sum
+{
+}
+
+impl Real for f64 {}
+impl Real for f32 {}
+
 /// Partial sums of [`squared_distance`] on long rows.
 const DISTANCE_LANES: usize = 8;
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn squared_distance_avx512(a: &[f64], b: &[f64]) -> f64 {
+unsafe fn squared_distance_avx512<T: Real>(a: &[T], b: &[T]) -> T {
     squared_distance_lanes(a, b)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn squared_distance_avx2(a: &[f64], b: &[f64]) -> f64 {
+unsafe fn squared_distance_avx2<T: Real>(a: &[T], b: &[T]) -> T {
     squared_distance_lanes(a, b)
 }
 
 #[inline(always)]
-fn squared_distance_lanes(a: &[f64], b: &[f64]) -> f64 {
+fn squared_distance_lanes<T: Real>(a: &[T], b: &[T]) -> T {
     let n = a.len().min(b.len());
     let (ac, bc) = (a[..n].chunks_exact(DISTANCE_LANES), b[..n].chunks_exact(DISTANCE_LANES));
-    let tail: f64 = ac.remainder().iter().zip(bc.remainder()).map(|(x, y)| (x - y).powi(2)).sum();
-    let mut acc = [0f64; DISTANCE_LANES];
+    let tail: T = ac.remainder().iter().zip(bc.remainder()).map(|(&x, &y)| (x - y) * (x - y)).sum();
+    let mut acc = [T::default(); DISTANCE_LANES];
     for (xs, ys) in ac.zip(bc) {
         for l in 0..DISTANCE_LANES {
             let d = xs[l] - ys[l];
-            acc[l] += d * d;
+            acc[l] = acc[l] + d * d;
         }
     }
     ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7])) + tail
@@ -741,7 +756,7 @@ mod tests {
     use crate::{spectral::dense_spectrum, synth::icosphere};
 
     #[test]
-    fn squared_distances_match_the_plain_sum_with_the_same_bits_on_every_path() {
+    fn squared_distances_match_the_plain_sum_in_both_precisions_with_the_same_bits_on_every_path() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         for n in [0, 1, 3, 7, 8, 15, 16, 17, 100, 200, 203] {
@@ -757,6 +772,13 @@ mod tests {
             );
             if n >= DISTANCE_LANES {
                 assert_eq!(squared_distance_lanes(&a, &b).to_bits(), d.to_bits(), "{n}: the portable path");
+            }
+            let single = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+            let (a32, b32) = (single(&a), single(&b));
+            let d32 = squared_distance(&a32, &b32);
+            assert!((f64::from(d32) - plain).abs() <= 1e-5 * plain.max(1.0), "{n}: {d32} against {plain}");
+            if n >= DISTANCE_LANES {
+                assert_eq!(squared_distance_lanes(&a32, &b32).to_bits(), d32.to_bits(), "{n}: f32, portable");
             }
         }
     }

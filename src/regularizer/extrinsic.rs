@@ -163,63 +163,80 @@ pub fn refine_extrinsic(
             tree: ImmutableKdTree::new_from_slice(&coordinates),
             coordinates,
             scale,
-            test_rows: phi_t.transpose().to_owned(),
+            test_rows: Mat::from_fn(k, n_t, |j, v| phi_t[(v, j)] as f32),
         }))
     } else if n_r > params.samples {
         Search::Sampled(reference.sample_cells(params.samples)?)
     } else {
         Search::Spectral
     };
-    // The test basis weighted by its mass (for the functional map and the deformation's
-    // projection), and the reference's spectral rows as contiguous columns (`k × n_r`).
+    // The two products of a round run in single precision (twice the throughput; what they
+    // feed is a nearest-neighbour search and a smooth deformation): the test basis weighted
+    // by its mass (for the functional map and the deformation's projection), and the
+    // reference's spectral rows as contiguous columns (`k × n_r`).
     let kw = k.max(kd);
     let phi_w = basis(tb, kw);
-    let weighted = Mat::from_fn(n_t, kw, |v, j| tb.mass[v] * phi_w[(v, j)]);
+    let weighted = Mat::from_fn(n_t, kw, |v, j| (tb.mass[v] * phi_w[(v, j)]) as f32);
+    let phi_r_rows = Mat::from_fn(k, n_r, |j, r| phi_r[(r, j)] as f32);
     let phi_d = basis(tb, kd);
-    let mut reference_rows = Mat::<f64>::zeros(k, n_r);
+    let mut reference_rows = Mat::<f32>::zeros(k, n_r);
     let mut current = map.to_vec();
     for _ in 0..params.rounds {
-        // One product gives the map's functional map `C = Φ_Mᵀ M Φ_R[T]` (first `k` columns)
-        // and the projection of the displacement it asks for, `X_R[T] − X_M` (last 3).
-        let gathered = Mat::from_fn(n_t, k + 3, |v, j| {
+        // One product gives the map's functional map `C = Φ_Mᵀ M Φ_R[T]` (first `k` rows of
+        // the gathered columns) and the projection of the displacement it asks for,
+        // `X_R[T] − X_M` (last 3).
+        let gathered = Mat::from_fn(k + 3, n_t, |j, v| {
             if j < k {
-                phi_r[(current[v], j)]
+                phi_r_rows[(j, current[v])]
             } else {
-                x_r[(current[v], j - k)] - x_t[(v, j - k)]
+                (x_r[(current[v], j - k)] - x_t[(v, j - k)]) as f32
             }
         });
-        let mut product = Mat::<f64>::zeros(kw, k + 3);
-        matmul(product.as_mut(), Accum::Replace, weighted.transpose(), gathered.as_ref(), 1.0, Par::rayon(0));
+        let mut product = Mat::<f32>::zeros(kw, k + 3);
+        matmul(
+            product.as_mut(),
+            Accum::Replace,
+            weighted.transpose(),
+            gathered.transpose(),
+            1.0,
+            Par::rayon(0),
+        );
         let c = product.as_ref().subrows(0, k).subcols(0, k);
         // The displacement kept to its smooth part.
         let mut deformed = x_t.clone();
+        let projection = Mat::from_fn(kd, 3, |i, d| f64::from(product[(i, k + d)]));
         crate::spectral::matmul_tall(
             deformed.as_mut(),
             Accum::Add,
             phi_d,
-            product.as_ref().subrows(0, kd).subcols(k, 3),
+            projection.as_ref(),
             1.0,
             Par::rayon(0),
         );
         // The rows of Φ_R Cᵀ, as the columns of C Φ_Rᵀ.
-        matmul(reference_rows.as_mut(), Accum::Replace, c, phi_r.transpose(), 1.0, Par::rayon(0));
+        matmul(reference_rows.as_mut(), Accum::Replace, c, phi_r_rows.as_ref(), 1.0, Par::rayon(0));
         current = match &search {
             Search::Joint(joint) => {
                 let moved: Vec<[f64; 3]> =
                     (0..n_t).map(|v| [deformed[(v, 0)], deformed[(v, 1)], deformed[(v, 2)]]).collect();
                 nearest_joint(joint, reference_rows.as_ref(), &moved, &current)
             }
-            Search::Spectral => nearest_rows(phi_t, reference_rows.transpose()),
+            Search::Spectral => nearest_rows(phi_t, wide_rows(reference_rows.as_ref()).as_ref()),
             Search::Sampled(cells) => {
-                let points = reference_rows.transpose();
+                let points = wide_rows(reference_rows.as_ref());
                 let sample_points =
                     Mat::from_fn(cells.samples.len(), k, |i, j| points[(cells.samples[i], j)]);
                 let coarse = nearest_rows_single(phi_t, sample_points.as_ref());
-                nearest_in_cells(phi_t, points, cells, &coarse)
+                nearest_in_cells(phi_t, points.as_ref(), cells, &coarse)
             }
         };
     }
     Ok(current)
+}
+
+/// The rows of `C Φ_Rᵀ`'s columns (`k × n_r`) in double precision, for the spectral searches.
+fn wide_rows(columns: MatRef<'_, f32>) -> Mat<f64> {
+    Mat::from_fn(columns.ncols(), columns.nrows(), |r, j| f64::from(columns[(j, r)]))
 }
 
 /// How step 3 searches: in the joint space, bounded by the coordinates (`weight` > 0); or, on
@@ -236,11 +253,11 @@ struct Joint {
     coordinates: Vec<[f64; 3]>,
     tree: ImmutableKdTree<f64, u32, 3, 32>,
     scale: f64,
-    test_rows: Mat<f64>,
+    test_rows: Mat<f32>,
 }
 
 /// Column `i` of an owned matrix as a slice.
-fn column(m: MatRef<'_, f64>, i: usize) -> &[f64] {
+fn column(m: MatRef<'_, f32>, i: usize) -> &[f32] {
     m.col(i).try_as_col_major().expect("an owned matrix's columns are contiguous").as_slice()
 }
 
@@ -251,7 +268,7 @@ fn column(m: MatRef<'_, f64>, i: usize) -> &[f64] {
 /// than the nearer of `hint[m]` and the vertex nearest in space (see the module documentation).
 fn nearest_joint(
     joint: &Joint,
-    reference_rows: MatRef<'_, f64>,
+    reference_rows: MatRef<'_, f32>,
     test_xyz: &[[f64; 3]],
     hint: &[usize],
 ) -> Vec<usize> {
@@ -261,7 +278,8 @@ fn nearest_joint(
         .into_par_iter()
         .map(|m| {
             let (q, y) = (column(test_rows, m), &test_xyz[m]);
-            let distance = |r: usize, d2: f64| s2 * d2 + squared_distance(q, column(reference_rows, r));
+            let distance =
+                |r: usize, d2: f64| s2 * d2 + f64::from(squared_distance(q, column(reference_rows, r)));
             let p = joint.coordinates[hint[m]];
             let nearer =
                 |a: (f64, usize), b: (f64, usize)| if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) { b } else { a };
@@ -287,7 +305,8 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let (k, n_t, n_r, scale) = (12, 300, 700, 3.0);
         let mut uniform = |n: usize, m: usize| Mat::from_fn(n, m, |_, _| rng.random_range(-1.0..1.0));
-        let (test_rows, reference_rows) = (uniform(k, n_t), uniform(k, n_r));
+        let single = |m: Mat<f64>| Mat::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32);
+        let (test_rows, reference_rows) = (single(uniform(k, n_t)), single(uniform(k, n_r)));
         let xyz =
             |m: &Mat<f64>| (0..m.nrows()).map(|i| [m[(i, 0)], m[(i, 1)], m[(i, 2)]]).collect::<Vec<_>>();
         let (test_xyz, reference_xyz) = (xyz(&uniform(n_t, 3)), xyz(&uniform(n_r, 3)));
@@ -302,7 +321,7 @@ mod tests {
         let found = nearest_joint(&joint, reference_rows.as_ref(), &test_xyz, &hint);
         for m in 0..n_t {
             let d = |r: usize| {
-                squared_distance(column(test_rows.as_ref(), m), column(reference_rows.as_ref(), r))
+                f64::from(squared_distance(column(test_rows.as_ref(), m), column(reference_rows.as_ref(), r)))
                     + scale * scale * squared_distance(&test_xyz[m], &reference_xyz[r])
             };
             let brute = (0..n_r).min_by(|&a, &b| d(a).total_cmp(&d(b))).unwrap();
