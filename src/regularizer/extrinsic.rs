@@ -87,22 +87,25 @@ fn unit_coordinates(mesh: &Mesh) -> Mat<f64> {
     Mat::from_fn(mesh.n_vertices(), 3, |v, d| mesh.vertices[v][d] * s)
 }
 
-/// Mean over the mesh's edges of `‖row_u − row_v‖` of `rows` (`n × d`).
+/// Mean over the mesh's edges of `‖row_u − row_v‖` of `rows` (`n × d`, column-major: summed a
+/// column at a time over every edge, not an edge at a time across the columns).
 fn mean_edge_step(mesh: &Mesh, rows: MatRef<'_, f64>) -> f64 {
-    let (mut sum, mut count) = (0.0, 0usize);
-    for f in &mesh.faces {
-        for (a, b) in [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])] {
-            if a < b {
-                sum += (0..rows.ncols()).map(|j| (rows[(a, j)] - rows[(b, j)]).powi(2)).sum::<f64>().sqrt();
-                count += 1;
-            }
+    let edges: Vec<(usize, usize)> = mesh
+        .faces
+        .iter()
+        .flat_map(|f| [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])])
+        .filter(|(a, b)| a < b)
+        .collect();
+    if edges.is_empty() {
+        return 0.0;
+    }
+    let mut squared = vec![0.0f64; edges.len()];
+    for j in 0..rows.ncols() {
+        for (s, &(a, b)) in squared.iter_mut().zip(&edges) {
+            *s += (rows[(a, j)] - rows[(b, j)]).powi(2);
         }
     }
-    if count > 0 {
-        sum / count as f64
-    } else {
-        0.0
-    }
+    squared.iter().map(|s| s.sqrt()).sum::<f64>() / edges.len() as f64
 }
 
 /// How far (× the reference's `√area`, Euclidean) [`settle_map`] may move an image by default.
