@@ -607,6 +607,17 @@ fn job_key(job: &Job, content: &str) -> String {
     }
 }
 
+/// The pause before the next try of a send while the server is away: `wait` (100 ms at first),
+/// doubled for the next, at most 2 s. `false` at shutdown: no more tries.
+async fn back_off(shutdown: &Shutdown, wait: &mut Duration) -> bool {
+    if shutdown.is_triggered() {
+        return false;
+    }
+    tokio::time::sleep(*wait).await;
+    *wait = (*wait * 2).min(Duration::from_secs(2));
+    true
+}
+
 struct NatsSender<C: Codec> {
     nats: Arc<Nats>,
     edge: Edge,
@@ -632,11 +643,9 @@ impl<C: Codec> NatsSender<C> {
                         job = env.job.id,
                         "cannot store the job's parts ({e}); the server is away, retrying"
                     );
-                    if self.shutdown.is_triggered() {
+                    if !back_off(&self.shutdown, &mut wait).await {
                         return None;
                     }
-                    tokio::time::sleep(wait).await;
-                    wait = (wait * 2).min(Duration::from_secs(2));
                 }
                 Err(e) => {
                     return Some(Err(Failure {
@@ -685,11 +694,9 @@ impl<C: Codec> NatsSender<C> {
                 Ok(()) => break,
                 Err(e) => {
                     tracing::warn!(job = env.job.id, stream = %self.edge.stream, "publish failed ({e}); retrying");
-                    if self.shutdown.is_triggered() {
+                    if !back_off(&self.shutdown, &mut wait).await {
                         return Err(());
                     }
-                    tokio::time::sleep(wait).await;
-                    wait = (wait * 2).min(Duration::from_secs(2));
                 }
             }
         }
