@@ -72,17 +72,18 @@ pub(super) fn grow_anchors(
     // Reference columns are shared by both runs: the second run's rounds mostly revisit the
     // targets of the first, and each costs a heat-method solve.
     let mut ref_cols = std::collections::HashMap::new();
-    let (map, anchors) =
-        grow_rounds(test, reference, posterior, start.clone(), p, p.orientation, &setup, &mut ref_cols)?;
-    let score = setup.orientation.mean_agreement(&map);
-    if p.reorient <= 0.0 {
-        return Ok(Grown { map, anchors, orientation: score, reoriented: false });
-    }
     // The second hypothesis: a first round placed with a strong orientation term, which puts
     // every vertex on the side its orientation descriptor says (undoing a mirror image of the
     // game's anchors, whole or in part), then the ordinary rounds. The better oriented map wins.
-    let (second, second_anchors) =
-        grow_rounds(test, reference, posterior, start, p, p.reorient, &setup, &mut ref_cols)?;
+    // Both runs' first rounds place from the same anchors (the start map's): one pass.
+    let first = if p.reorient > 0.0 { vec![p.orientation, p.reorient] } else { vec![p.orientation] };
+    let mut runs =
+        grow_rounds(test, reference, posterior, start, p, &first, &setup, &mut ref_cols)?.into_iter();
+    let (map, anchors) = runs.next().expect("one run per first orientation");
+    let score = setup.orientation.mean_agreement(&map);
+    let Some((second, second_anchors)) = runs.next() else {
+        return Ok(Grown { map, anchors, orientation: score, reoriented: false });
+    };
     let second_score = setup.orientation.mean_agreement(&second);
     if second_score > score {
         Ok(Grown { map: second, anchors: second_anchors, orientation: second_score, reoriented: true })
@@ -173,8 +174,11 @@ pub(super) struct Grown {
     pub(super) reoriented: bool,
 }
 
-/// The rounds of anchor growth from `start`. `ref_cols` holds the normalised reference
-/// distance columns computed so far (by target vertex); the missing ones are added.
+/// The rounds of anchor growth from `start`, one run per orientation weight of the first round
+/// in `first_orientations` (one or two; the later rounds weigh it `p.orientation`): each run's
+/// map and its anchors. The runs' first rounds share their anchors (the start map's), and so
+/// one pass places them all. `ref_cols` holds the normalised reference distance columns
+/// computed so far (by target vertex); the missing ones are added.
 #[allow(clippy::too_many_arguments)]
 fn grow_rounds(
     test: &PreparedShape,
@@ -182,10 +186,10 @@ fn grow_rounds(
     posterior: &LabelledPosterior<'_>,
     start: Vec<usize>,
     p: &AnchorGrowthParams,
-    first_orientation: f64,
+    first_orientations: &[f64],
     setup: &GrowthSetup,
     ref_cols: &mut std::collections::HashMap<usize, Vec<f32>>,
-) -> Result<(Vec<usize>, usize), Error> {
+) -> Result<Vec<(Vec<usize>, usize)>, Error> {
     use rayon::prelude::*;
     let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
     let GrowthSetup { samples, a_fields, orientation, boundary, extra, prior } = setup;
@@ -193,14 +197,18 @@ fn grow_rounds(
     let s = samples.len();
     let ts = 1.0 / test.sqrt_area();
     let a_col = |j: usize| &a_fields[j][..];
-    let mut map = start;
     let n_keep = ((s as f64 * p.keep).ceil() as usize).clamp(3, s);
-    let mut used = 0;
+    let runs = first_orientations.len();
+    assert!((1..=MAX_RUNS).contains(&runs), "one or two growth runs, not {runs}");
+    if p.rounds == 0 {
+        return Ok(vec![(start, 0); runs]);
+    }
     // Row-major tables, rewritten whole every round (allocated once: fresh pages fault):
     // test distances and weights (n_t × k), reference distances (n_r × k).
     let (mut a, mut w, mut b) =
         (vec![0f32; n_t * n_keep], vec![0f32; n_t * n_keep], vec![0f32; n_r * n_keep]);
-    for round in 0..p.rounds {
+    // One round from `map`: a placement per orientation weight in `gammas`.
+    let mut round = |map: &[usize], gammas: &[f64], last: bool| -> Result<Vec<Vec<usize>>, Error> {
         let targets: Vec<usize> = samples.iter().map(|&v| map[v]).collect();
         let mut missing: Vec<usize> = targets.iter().copied().filter(|t| !ref_cols.contains_key(t)).collect();
         missing.sort_unstable();
@@ -251,29 +259,35 @@ fn grow_rounds(
                 *x = col[r];
             }
         });
-        let last = round + 1 == p.rounds;
-        let gamma = if round == 0 { first_orientation } else { p.orientation } as f32;
+        let gammas: Vec<f32> = gammas.iter().map(|&g| g as f32).collect();
+        let turns = gammas.iter().any(|&g| g > 0.0);
+        let (a, w, b) = (&a, &w, &b);
         // Each vertex's candidates with their cost (mean locality-weighted disagreement, in
-        // √area units); the cheapest is the new placement. The last round keeps the table for
-        // the smoothing below.
-        let placed: Vec<(usize, Vec<(u32, f32)>)> = (0..n_t)
+        // √area units, plus the orientation term at each weight); the cheapest is the new
+        // placement. The last round keeps the tables for the smoothing below.
+        let placed: Vec<[Placement; MAX_RUNS]> = (0..n_t)
             .into_par_iter()
             .map(|m| {
                 let (am, wm) = (&a[m * k..(m + 1) * k], &w[m * k..(m + 1) * k]);
                 let norm = 1.0 / wm.iter().sum::<f32>().max(f32::MIN_POSITIVE);
-                let mut best = (f32::INFINITY, map[m]);
-                let mut table = Vec::new();
+                let mut best = [(f32::INFINITY, map[m]); MAX_RUNS];
+                let mut tables: [Vec<(u32, f32)>; MAX_RUNS] = Default::default();
                 let mut consider = |r: usize, prior_cost: f32| {
                     let br = &b[r * k..(r + 1) * k];
-                    let mut cost = weighted_l1(am, wm, br) * norm + prior_cost;
-                    if gamma > 0.0 {
-                        cost += gamma * (0.5 * (1.0 - orientation.agreement(m, r))) as f32;
-                    }
-                    if cost < best.0 {
-                        best = (cost, r);
-                    }
-                    if last {
-                        table.push((r as u32, cost));
+                    let distance = weighted_l1(am, wm, br) * norm + prior_cost;
+                    let disagreement =
+                        if turns { (0.5 * (1.0 - orientation.agreement(m, r))) as f32 } else { 0.0 };
+                    for (g, &gamma) in gammas.iter().enumerate() {
+                        let mut cost = distance;
+                        if gamma > 0.0 {
+                            cost += gamma * disagreement;
+                        }
+                        if cost < best[g].0 {
+                            best[g] = (cost, r);
+                        }
+                        if last {
+                            tables[g].push((r as u32, cost));
+                        }
                     }
                 };
                 match prior {
@@ -292,18 +306,37 @@ fn grow_rounds(
                 for &r in extra {
                     consider(r, 0.0);
                 }
-                (best.1, table)
+                let [t0, t1] = tables;
+                [(best[0].1, t0), (best[1].1, t1)]
             })
             .collect();
-        map = placed.iter().map(|p| p.0).collect();
-        if last && p.smoothness > 0.0 && p.smoothing_rounds > 0 {
-            let table: Vec<Vec<(u32, f32)>> = placed.into_iter().map(|p| p.1).collect();
-            map = smooth_placement(&test.mesh, &reference.mesh, reference.sqrt_area(), &table, map, p);
+        let mut maps = Vec::with_capacity(gammas.len());
+        for g in 0..gammas.len() {
+            let mut map: Vec<usize> = placed.iter().map(|p| p[g].0).collect();
+            if last && p.smoothness > 0.0 && p.smoothing_rounds > 0 {
+                let table: Vec<&[(u32, f32)]> = placed.iter().map(|p| &p[g].1[..]).collect();
+                map = smooth_placement(&test.mesh, &reference.mesh, reference.sqrt_area(), &table, map, p);
+            }
+            maps.push(map);
         }
-        used = k;
+        Ok(maps)
+    };
+    let firsts = round(&start, first_orientations, p.rounds == 1)?;
+    let mut out = Vec::with_capacity(runs);
+    for mut map in firsts {
+        for r in 1..p.rounds {
+            map = round(&map, &[p.orientation], r + 1 == p.rounds)?.swap_remove(0);
+        }
+        out.push((map, n_keep));
     }
-    Ok((map, used))
+    Ok(out)
 }
+
+/// Growth runs at most: the ordinary one and the re-orienting one.
+const MAX_RUNS: usize = 2;
+
+/// A vertex's placement in one run's round, and (in the last round) every candidate's cost.
+type Placement = (usize, Vec<(u32, f32)>);
 
 /// `Σ w·|x − y|` over equal-length slices, summed in 16 lanes (vectorised; the lanes are added
 /// up in a fixed order, so the result does not depend on the thread), compiled for the widest

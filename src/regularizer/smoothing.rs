@@ -11,7 +11,7 @@ pub(super) fn smooth_placement(
     test: &Mesh,
     reference: &Mesh,
     ref_sqrt_area: f64,
-    table: &[Vec<(u32, f32)>],
+    table: &[impl AsRef<[(u32, f32)]> + Sync],
     mut map: Vec<usize>,
     p: &AnchorGrowthParams,
 ) -> Vec<usize> {
@@ -27,7 +27,7 @@ pub(super) fn smooth_placement(
         .par_iter()
         .map(|t| {
             let mut o: Vec<(f32, u32, u32)> =
-                t.iter().enumerate().map(|(i, &(r, c))| (c, i as u32, r)).collect();
+                t.as_ref().iter().enumerate().map(|(i, &(r, c))| (c, i as u32, r)).collect();
             o.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             o
         })
