@@ -305,18 +305,22 @@ pub fn solve_rows_with_diagonal(
 
 /// A matrix copied row by row into one contiguous buffer, for searches that read whole rows at
 /// random (a column-major matrix puts a row's entries one column length apart).
-pub(crate) struct RowMajor {
-    data: Vec<f64>,
+pub(crate) struct RowMajor<T = f64> {
+    data: Vec<T>,
     ncols: usize,
 }
 
-impl RowMajor {
-    pub(crate) fn new(m: MatRef<'_, f64>) -> Self {
-        let ncols = m.ncols();
-        let mut data = vec![0.0; m.nrows() * ncols];
+impl<T: Real> RowMajor<T> {
+    pub(crate) fn new(m: MatRef<'_, T>) -> Self {
+        Self::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)])
+    }
+
+    /// `rows × ncols` entries `f(i, j)`, written a column at a time.
+    fn from_fn(rows: usize, ncols: usize, f: impl Fn(usize, usize) -> T) -> Self {
+        let mut data = vec![T::default(); rows * ncols];
         for j in 0..ncols {
-            for (i, &x) in m.col(j).iter().enumerate() {
-                data[i * ncols + j] = x;
+            for i in 0..rows {
+                data[i * ncols + j] = f(i, j);
             }
         }
         Self { data, ncols }
@@ -326,8 +330,15 @@ impl RowMajor {
         self.data.len().checked_div(self.ncols).unwrap_or(0)
     }
 
-    pub(crate) fn row(&self, i: usize) -> &[f64] {
+    pub(crate) fn row(&self, i: usize) -> &[T] {
         &self.data[i * self.ncols..(i + 1) * self.ncols]
+    }
+}
+
+impl RowMajor<f32> {
+    /// The rows of a double-precision matrix, rounded to single precision.
+    pub(crate) fn single(m: MatRef<'_, f64>) -> Self {
+        Self::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32)
     }
 }
 
@@ -360,15 +371,25 @@ pub(crate) fn squared_distance<T: Real>(a: &[T], b: &[T]) -> T {
 pub(crate) trait Real:
     Copy
     + Default
+    + PartialOrd
+    + Send
+    + Sync
     + std::ops::Add<Output = Self>
     + std::ops::Sub<Output = Self>
     + std::ops::Mul<Output = Self>
     + std::iter::Sum
 {
+    /// Positive infinity.
+    const INFINITY: Self;
 }
 
-impl Real for f64 {}
-impl Real for f32 {}
+impl Real for f64 {
+    const INFINITY: Self = f64::INFINITY;
+}
+
+impl Real for f32 {
+    const INFINITY: Self = f32::INFINITY;
+}
 
 /// Partial sums of [`squared_distance`] on long rows.
 const DISTANCE_LANES: usize = 8;
@@ -868,5 +889,27 @@ mod tests {
         assert_eq!(c.nrows(), 30);
         let correct = map.iter().enumerate().filter(|(i, &j)| *i == j).count();
         assert_eq!(correct, s.n_vertices);
+    }
+
+    #[test]
+    fn the_point_map_read_in_cells_in_single_precision_is_the_exhaustive_search() {
+        // A shape onto itself through a functional map near the identity: the cells' answer is
+        // the nearest row of every reference vertex, up to single-precision ties.
+        let mesh = icosphere(3, 1.0);
+        let s = dense_spectrum(&mesh, 20).unwrap();
+        let cells = crate::regularizer::sample_cells(&mesh, 60).unwrap();
+        let c = Mat::from_fn(
+            20,
+            20,
+            |i, j| if i == j { 1.0 } else { 0.02 * ((i * 7 + j * 3) % 5) as f64 - 0.04 },
+        );
+        let found = point_to_point_in_cells(&s, &s, &cells, None, c.as_ref()).unwrap();
+        let points = mapped_reference_rows(basis(&s, 20), c.as_ref());
+        let queries = basis(&s, 20);
+        let d = |m: usize, r: usize| (0..20).map(|j| (queries[(m, j)] - points[(r, j)]).powi(2)).sum::<f64>();
+        for (m, &r) in found.iter().enumerate() {
+            let best = (0..s.n_vertices).map(|q| d(m, q)).fold(f64::INFINITY, f64::min);
+            assert!(d(m, r) <= best + 1e-5 * (1.0 + best), "vertex {m}: {} against {best}", d(m, r));
+        }
     }
 }

@@ -12,7 +12,8 @@ use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par, Side};
 use rayon::prelude::*;
 
 use super::{
-    basis, check_basis, mapped_reference_rows, nearest_rows_single, squared_distance, FmapError, RowMajor,
+    basis, check_basis, mapped_reference_rows, nearest_rows_in, nearest_rows_single, squared_distance,
+    FmapError, Real, RowMajor,
 };
 use crate::spectral::Spectrum;
 
@@ -295,9 +296,11 @@ pub fn zoomout_on_samples(
         let points = mapped_reference_rows(phi_r.subcols(0, k), c.as_ref());
         let t = match balls {
             None => nearest_rows_single(phi_t.subcols(0, k), points.as_ref()),
-            Some(b) => nearest_among(phi_t.subcols(0, k), points.as_ref(), |i| {
-                b.of(reference_cells.cell_of[first[i]] as usize)
-            }),
+            Some(b) => {
+                nearest_among(&RowMajor::new(phi_t.subcols(0, k)), &RowMajor::new(points.as_ref()), |i| {
+                    b.of(reference_cells.cell_of[first[i]] as usize)
+                })
+            }
         };
         let last = k == kf;
         k = (k + schedule.step).min(kf);
@@ -312,7 +315,9 @@ pub fn zoomout_on_samples(
 /// row of `Φ_M` against the rows of `Φ_R Cᵀ`, see [`super::point_to_point_orthogonal`]), searched
 /// among the reference samples first and then among the vertices of the nearest sample's cell
 /// and its neighbouring cells. With `balls` and the starting `map`, the samples searched first
-/// are those of the ball around the cell of the vertex's image under `map`.
+/// are those of the ball around the cell of the vertex's image under `map`. Computed in single
+/// precision: where two reference vertices are equally near up to its rounding, either may be
+/// returned.
 pub fn point_to_point_in_cells(
     test: &Spectrum,
     reference: &Spectrum,
@@ -333,12 +338,32 @@ pub fn point_to_point_in_cells(
             reference.n_vertices
         )));
     }
-    let points = mapped_reference_rows(basis(reference, k), c);
-    let queries = basis(test, k);
-    let sample_points =
-        Mat::from_fn(reference_cells.samples.len(), k, |i, j| points[(reference_cells.samples[i], j)]);
+    // In single precision (twice the throughput of the product and the distances; the image
+    // of a vertex changes only where two candidates are as near as single-precision rounding
+    // tells apart): the rows of `Φ_R Cᵀ`, and the test rows searched among them.
+    let points = {
+        let single = |m: MatRef<'_, f64>| Mat::<f32>::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32);
+        let (phi_r, c) = (single(basis(reference, k)), single(c));
+        let mut points = Mat::<f32>::zeros(phi_r.nrows(), k);
+        crate::spectral::matmul_tall(
+            points.as_mut(),
+            Accum::Replace,
+            phi_r.as_ref(),
+            c.transpose(),
+            1.0,
+            Par::rayon(0),
+        );
+        RowMajor::new(points.as_ref())
+    };
+    let queries = RowMajor::single(basis(test, k));
+    let sample_points = Mat::<f32>::from_fn(reference_cells.samples.len(), k, |i, j| {
+        points.row(reference_cells.samples[i])[j]
+    });
     let coarse = match restrict {
-        None => nearest_rows_single(queries, sample_points.as_ref()),
+        None => {
+            let queries = Mat::<f32>::from_fn(queries.nrows(), k, |i, j| queries.row(i)[j]);
+            nearest_rows_in(queries.as_ref(), sample_points.as_ref())
+        }
         Some((balls, map)) => {
             if map.len() != test.n_vertices {
                 return Err(FmapError::SizeMismatch(format!(
@@ -348,12 +373,11 @@ pub fn point_to_point_in_cells(
                 )));
             }
             check_map(map, reference, Some(balls), reference_cells)?;
-            nearest_among(queries, sample_points.as_ref(), |m| {
-                balls.of(reference_cells.cell_of[map[m]] as usize)
-            })
+            let sample_points = RowMajor::new(sample_points.as_ref());
+            nearest_among(&queries, &sample_points, |m| balls.of(reference_cells.cell_of[map[m]] as usize))
         }
     };
-    Ok(nearest_in_cells(queries, points.as_ref(), reference_cells, &coarse))
+    Ok(nearest_in_cell_rows(&queries, &points, reference_cells, &coarse))
 }
 
 /// For each query row `m`, the reference vertex whose row of `points` is nearest among the
@@ -367,10 +391,19 @@ pub fn nearest_in_cells(
 ) -> Vec<usize> {
     // Row-major copies: each distance reads two contiguous rows instead of one entry per
     // column of a column-major matrix (a cache miss each on large meshes).
-    let (queries, points) = (RowMajor::new(queries), RowMajor::new(points));
+    nearest_in_cell_rows(&RowMajor::new(queries), &RowMajor::new(points), reference_cells, coarse)
+}
+
+/// [`nearest_in_cells`] on rows already copied row-major, in either precision.
+fn nearest_in_cell_rows<T: Real>(
+    queries: &RowMajor<T>,
+    points: &RowMajor<T>,
+    reference_cells: &SampleCells,
+    coarse: &[usize],
+) -> Vec<usize> {
     let mut out = vec![0usize; queries.nrows()];
     out.par_iter_mut().enumerate().for_each(|(m, slot)| {
-        let mut best = f64::INFINITY;
+        let mut best = T::INFINITY;
         let q = queries.row(m);
         for &cell in reference_cells.neighbours_of(coarse[m]) {
             for &r in reference_cells.members_of(cell as usize) {
@@ -411,15 +444,14 @@ pub(super) fn check_map(
 
 /// For each row `i` of `queries`, the row of `points` nearest to it among `candidates(i)`
 /// (the first candidate when all are equally far; row 0 when there are none).
-fn nearest_among<'a>(
-    queries: MatRef<'_, f64>,
-    points: MatRef<'_, f64>,
+fn nearest_among<'a, T: Real>(
+    queries: &RowMajor<T>,
+    points: &RowMajor<T>,
     candidates: impl Fn(usize) -> &'a [u32] + Sync,
 ) -> Vec<usize> {
-    let (queries, points) = (RowMajor::new(queries), RowMajor::new(points));
     let mut out = vec![0usize; queries.nrows()];
     out.par_iter_mut().enumerate().for_each(|(i, slot)| {
-        let mut best = f64::INFINITY;
+        let mut best = T::INFINITY;
         let q = queries.row(i);
         for &p in candidates(i) {
             let p = p as usize;
