@@ -184,26 +184,56 @@ pub fn refine_extrinsic(
     let phi_d = basis(tb, kd);
     let mut reference_rows = Mat::<f32>::zeros(k, n_r);
     let mut current = map.to_vec();
+    // The map of the last round and its product.
+    let mut last: Option<(Vec<usize>, Mat<f32>)> = None;
     for _ in 0..params.rounds {
         // One product gives the map's functional map `C = Φ_Mᵀ M Φ_R[T]` (first `k` rows of
         // the gathered columns) and the projection of the displacement it asks for,
-        // `X_R[T] − X_M` (last 3).
-        let gathered = Mat::from_fn(k + 3, n_t, |j, v| {
-            if j < k {
-                phi_r_rows[(j, current[v])]
-            } else {
-                (x_r[(current[v], j - k)] - x_t[(v, j - k)]) as f32
-            }
+        // `X_R[T] − X_M` (last 3): a sum over test vertices, so after the first round only the
+        // vertices whose image moved change it (when they are fewer than half).
+        let gather = |map: &[usize], vertices: &[usize]| {
+            Mat::from_fn(k + 3, vertices.len(), |j, i| {
+                let v = vertices[i];
+                if j < k {
+                    phi_r_rows[(j, map[v])]
+                } else {
+                    (x_r[(map[v], j - k)] - x_t[(v, j - k)]) as f32
+                }
+            })
+        };
+        let moved: Option<Vec<usize>> = last.as_ref().and_then(|(before, _)| {
+            let moved: Vec<usize> = (0..n_t).filter(|&v| current[v] != before[v]).collect();
+            (2 * moved.len() < n_t).then_some(moved)
         });
-        let mut product = Mat::<f32>::zeros(kw, k + 3);
-        matmul(
-            product.as_mut(),
-            Accum::Replace,
-            weighted.transpose(),
-            gathered.transpose(),
-            1.0,
-            Par::rayon(0),
-        );
+        let product = match (moved, last.take()) {
+            (Some(moved), Some((before, mut product))) => {
+                let rows = Mat::from_fn(moved.len(), kw, |i, j| weighted[(moved[i], j)]);
+                let (now, then) = (gather(&current, &moved), gather(&before, &moved));
+                let change = Mat::from_fn(k + 3, moved.len(), |j, i| now[(j, i)] - then[(j, i)]);
+                matmul(
+                    product.as_mut(),
+                    Accum::Add,
+                    rows.transpose(),
+                    change.transpose(),
+                    1.0,
+                    Par::rayon(0),
+                );
+                product
+            }
+            _ => {
+                let all: Vec<usize> = (0..n_t).collect();
+                let mut product = Mat::<f32>::zeros(kw, k + 3);
+                matmul(
+                    product.as_mut(),
+                    Accum::Replace,
+                    weighted.transpose(),
+                    gather(&current, &all).transpose(),
+                    1.0,
+                    Par::rayon(0),
+                );
+                product
+            }
+        };
         let c = product.as_ref().subrows(0, k).subcols(0, k);
         // The displacement kept to its smooth part.
         let mut deformed = x_t.clone();
@@ -218,7 +248,7 @@ pub fn refine_extrinsic(
         );
         // The rows of Φ_R Cᵀ, as the columns of C Φ_Rᵀ.
         matmul(reference_rows.as_mut(), Accum::Replace, c, phi_r_rows.as_ref(), 1.0, Par::rayon(0));
-        current = match &search {
+        let next = match &search {
             Search::Joint(joint) => {
                 let moved: Vec<[f64; 3]> =
                     (0..n_t).map(|v| [deformed[(v, 0)], deformed[(v, 1)], deformed[(v, 2)]]).collect();
@@ -233,6 +263,7 @@ pub fn refine_extrinsic(
                 nearest_in_cells(phi_t, points.as_ref(), cells, &coarse)
             }
         };
+        last = Some((std::mem::replace(&mut current, next), product));
     }
     Ok(current)
 }
