@@ -135,32 +135,44 @@ pub fn local_rigid(
     let r2 = params.radius * params.radius;
     let reach2 = (params.reach * edge).powi(2);
     let fit2 = (params.fit * edge).powi(2);
+    // Every vertex's neighbourhood, the same in every round.
+    let balls: Vec<Vec<u32>> = (0..n)
+        .into_par_iter()
+        .map_init(
+            || (vec![u32::MAX; n], Vec::new()),
+            |(seen, ball), v| {
+                connected_ball(&xt, (&offsets, &neighbours), v, r2, (seen, v as u32), ball);
+                ball.iter().map(|&u| u as u32).collect()
+            },
+        )
+        .collect();
     let mut current = map.to_vec();
     for _ in 0..params.rounds {
         let next: Vec<usize> = (0..n)
             .into_par_iter()
             .map_init(
-                || (vec![u32::MAX; n], Vec::<usize>::new(), vec![u32::MAX; nr], Vec::<usize>::new()),
-                |(seen, ball, seen_r, near), v| {
+                || (vec![u32::MAX; nr], Vec::<usize>::new()),
+                |(seen_r, near), v| {
                     let stamp = v as u32;
-                    connected_ball(&xt, (&offsets, &neighbours), v, r2, (seen, stamp), ball);
-                    if ball.len() < MIN_NEIGHBOURS {
+                    let ball = &balls[v];
+                    let ball = || ball.iter().map(|&u| u as usize);
+                    if ball().len() < MIN_NEIGHBOURS {
                         return current[v];
                     }
-                    let total: f64 = ball.iter().map(|&u| weight[u]).sum();
+                    let total: f64 = ball().map(|u| weight[u]).sum();
                     if total <= 0.0 {
                         return current[v];
                     }
                     let mut mx = Vector3::zeros();
                     let mut my = Vector3::zeros();
-                    for &u in ball.iter() {
+                    for u in ball() {
                         mx += xt[u] * weight[u];
                         my += xr[current[u]] * weight[u];
                     }
                     mx /= total;
                     my /= total;
                     let mut h = Matrix3::zeros();
-                    for &u in ball.iter() {
+                    for u in ball() {
                         h += (xt[u] - mx) * (xr[current[u]] - my).transpose() * weight[u];
                     }
                     let svd = h.svd(true, true);
@@ -171,7 +183,7 @@ pub fn local_rigid(
                     // A neighbourhood that does not move rigidly (a seam between a right and
                     // a wrong part, a bending joint) tells nothing: the image stays.
                     let mut spread = 0.0;
-                    for &u in ball.iter() {
+                    for u in ball() {
                         spread += weight[u] * (rotation * (xt[u] - mx) + my - xr[current[u]]).norm_squared();
                     }
                     if spread > fit2 * total {
