@@ -335,13 +335,6 @@ impl<T: Real> RowMajor<T> {
     }
 }
 
-impl RowMajor<f32> {
-    /// The rows of a double-precision matrix, rounded to single precision.
-    pub(crate) fn single(m: MatRef<'_, f64>) -> Self {
-        Self::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32)
-    }
-}
-
 /// `Σ_j (a_j − b_j)²` over the shorter of the two, in `f64` or `f32`. Short rows (coordinates)
 /// are summed in order of `j`; rows of [`DISTANCE_LANES`] entries or more (spectral rows: the
 /// inner loop of every point-map search) in that many interleaved partial sums added up in a

@@ -341,29 +341,22 @@ pub fn point_to_point_in_cells(
     // In single precision (twice the throughput of the product and the distances; the image
     // of a vertex changes only where two candidates are as near as single-precision rounding
     // tells apart): the rows of `Φ_R Cᵀ`, and the test rows searched among them.
-    let points = {
-        let single = |m: MatRef<'_, f64>| Mat::<f32>::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32);
-        let (phi_r, c) = (single(basis(reference, k)), single(c));
-        let mut points = Mat::<f32>::zeros(phi_r.nrows(), k);
-        crate::spectral::matmul_tall(
-            points.as_mut(),
-            Accum::Replace,
-            phi_r.as_ref(),
-            c.transpose(),
-            1.0,
-            Par::rayon(0),
-        );
-        RowMajor::new(points.as_ref())
-    };
-    let queries = RowMajor::single(basis(test, k));
-    let sample_points = Mat::<f32>::from_fn(reference_cells.samples.len(), k, |i, j| {
-        points.row(reference_cells.samples[i])[j]
-    });
+    let single = |m: MatRef<'_, f64>| Mat::<f32>::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32);
+    let mut points = Mat::<f32>::zeros(reference.n_vertices, k);
+    crate::spectral::matmul_tall(
+        points.as_mut(),
+        Accum::Replace,
+        single(basis(reference, k)).as_ref(),
+        single(c).transpose(),
+        1.0,
+        Par::rayon(0),
+    );
+    let queries = single(basis(test, k));
+    let sample_points =
+        Mat::<f32>::from_fn(reference_cells.samples.len(), k, |i, j| points[(reference_cells.samples[i], j)]);
+    let (points, query_rows) = (RowMajor::new(points.as_ref()), RowMajor::new(queries.as_ref()));
     let coarse = match restrict {
-        None => {
-            let queries = Mat::<f32>::from_fn(queries.nrows(), k, |i, j| queries.row(i)[j]);
-            nearest_rows_in(queries.as_ref(), sample_points.as_ref())
-        }
+        None => nearest_rows_in(queries.as_ref(), sample_points.as_ref()),
         Some((balls, map)) => {
             if map.len() != test.n_vertices {
                 return Err(FmapError::SizeMismatch(format!(
@@ -374,10 +367,10 @@ pub fn point_to_point_in_cells(
             }
             check_map(map, reference, Some(balls), reference_cells)?;
             let sample_points = RowMajor::new(sample_points.as_ref());
-            nearest_among(&queries, &sample_points, |m| balls.of(reference_cells.cell_of[map[m]] as usize))
+            nearest_among(&query_rows, &sample_points, |m| balls.of(reference_cells.cell_of[map[m]] as usize))
         }
     };
-    Ok(nearest_in_cell_rows(&queries, &points, reference_cells, &coarse))
+    Ok(nearest_in_cell_rows(&query_rows, &points, reference_cells, &coarse))
 }
 
 /// For each query row `m`, the reference vertex whose row of `points` is nearest among the

@@ -201,15 +201,15 @@ pub fn refine_extrinsic(
                 }
             })
         };
-        let moved: Option<Vec<usize>> = last.as_ref().and_then(|(before, _)| {
-            let moved: Vec<usize> = (0..n_t).filter(|&v| current[v] != before[v]).collect();
-            (2 * moved.len() < n_t).then_some(moved)
+        let changed: Option<Vec<usize>> = last.as_ref().and_then(|(before, _)| {
+            let changed: Vec<usize> = (0..n_t).filter(|&v| current[v] != before[v]).collect();
+            (2 * changed.len() < n_t).then_some(changed)
         });
-        let product = match (moved, last.take()) {
-            (Some(moved), Some((before, mut product))) => {
-                let rows = Mat::from_fn(moved.len(), kw, |i, j| weighted[(moved[i], j)]);
-                let (now, then) = (gather(&current, &moved), gather(&before, &moved));
-                let change = Mat::from_fn(k + 3, moved.len(), |j, i| now[(j, i)] - then[(j, i)]);
+        let product = match (changed, last.take()) {
+            (Some(changed), Some((before, mut product))) => {
+                let rows = Mat::from_fn(changed.len(), kw, |i, j| weighted[(changed[i], j)]);
+                let (now, then) = (gather(&current, &changed), gather(&before, &changed));
+                let change = Mat::from_fn(k + 3, changed.len(), |j, i| now[(j, i)] - then[(j, i)]);
                 matmul(
                     product.as_mut(),
                     Accum::Add,
