@@ -312,15 +312,11 @@ pub(crate) struct RowMajor<T = f64> {
 
 impl<T: Real> RowMajor<T> {
     pub(crate) fn new(m: MatRef<'_, T>) -> Self {
-        Self::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)])
-    }
-
-    /// `rows × ncols` entries `f(i, j)`, written a column at a time.
-    fn from_fn(rows: usize, ncols: usize, f: impl Fn(usize, usize) -> T) -> Self {
-        let mut data = vec![T::default(); rows * ncols];
+        let ncols = m.ncols();
+        let mut data = vec![T::default(); m.nrows() * ncols];
         for j in 0..ncols {
-            for i in 0..rows {
-                data[i * ncols + j] = f(i, j);
+            for (i, &x) in m.col(j).iter().enumerate() {
+                data[i * ncols + j] = x;
             }
         }
         Self { data, ncols }
@@ -441,39 +437,28 @@ pub fn nearest_rows(queries: MatRef<'_, f64>, points: MatRef<'_, f64>) -> Vec<us
 /// assert_eq!(shapeforest::fmap::nearest_rows_single(q.as_ref(), pts.as_ref()), vec![1, 2, 0]);
 /// ```
 pub fn nearest_rows_single(queries: MatRef<'_, f64>, points: MatRef<'_, f64>) -> Vec<usize> {
-    let single = |m: MatRef<'_, f64>| Mat::<f32>::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32);
     nearest_rows_in(single(queries).as_ref(), single(points).as_ref())
 }
 
-/// The scalars [`nearest_rows_in`] runs on.
-trait SearchScalar:
-    faer::traits::ComplexField
-    + Copy
-    + PartialOrd
-    + std::ops::Add<Output = Self>
-    + std::ops::Sub<Output = Self>
-    + std::ops::Mul<Output = Self>
-    + Send
-    + Sync
-{
-    const ZERO: Self;
+/// `m` rounded to single precision.
+pub(crate) fn single(m: MatRef<'_, f64>) -> Mat<f32> {
+    Mat::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32)
+}
+
+/// The scalars [`nearest_rows_in`] runs on: [`Real`]s that faer multiplies.
+pub(crate) trait SearchScalar: Real + faer::traits::ComplexField {
     const ONE: Self;
     const TWO: Self;
-    const INFINITY: Self;
 }
 
 impl SearchScalar for f64 {
-    const ZERO: Self = 0.0;
     const ONE: Self = 1.0;
     const TWO: Self = 2.0;
-    const INFINITY: Self = f64::INFINITY;
 }
 
 impl SearchScalar for f32 {
-    const ZERO: Self = 0.0;
     const ONE: Self = 1.0;
     const TWO: Self = 2.0;
-    const INFINITY: Self = f32::INFINITY;
 }
 
 fn nearest_rows_in<T: SearchScalar>(queries: MatRef<'_, T>, points: MatRef<'_, T>) -> Vec<usize> {
@@ -485,7 +470,7 @@ fn nearest_rows_in<T: SearchScalar>(queries: MatRef<'_, T>, points: MatRef<'_, T
         return vec![0; nq];
     }
     let point_sq: Vec<T> = (0..np)
-        .map(|r| (0..points.ncols()).fold(T::ZERO, |acc, c| acc + points[(r, c)] * points[(r, c)]))
+        .map(|r| (0..points.ncols()).fold(T::default(), |acc, c| acc + points[(r, c)] * points[(r, c)]))
         .collect();
     let mut out = vec![0usize; nq];
     // One product buffer per worker, not per block (no zeroing: the product overwrites it).
@@ -638,10 +623,17 @@ pub fn point_to_point_rows(
 
 /// The reference rows mapped into the test basis, `Φ_R Cᵀ` (`phi_r.nrows() × c.nrows()`; `phi_r`
 /// holds the first `c.ncols()` reference basis functions): the points that test rows of `Φ_M`
-/// are searched among. In row strips, see [`crate::spectral::matmul_tall`].
-pub(crate) fn mapped_reference_rows(phi_r: MatRef<'_, f64>, c: MatRef<'_, f64>) -> Mat<f64> {
-    let mut points = Mat::<f64>::zeros(phi_r.nrows(), c.nrows());
-    crate::spectral::matmul_tall(points.as_mut(), Accum::Replace, phi_r, c.transpose(), 1.0, Par::rayon(0));
+/// are searched among. In row strips, see [`crate::spectral::matmul_tall`]; in either precision.
+pub(crate) fn mapped_reference_rows<T: SearchScalar>(phi_r: MatRef<'_, T>, c: MatRef<'_, T>) -> Mat<T> {
+    let mut points = Mat::<T>::zeros(phi_r.nrows(), c.nrows());
+    crate::spectral::matmul_tall(
+        points.as_mut(),
+        Accum::Replace,
+        phi_r,
+        c.transpose(),
+        T::ONE,
+        Par::rayon(0),
+    );
     points
 }
 

@@ -12,8 +12,8 @@ use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par, Side};
 use rayon::prelude::*;
 
 use super::{
-    basis, check_basis, mapped_reference_rows, nearest_rows_in, nearest_rows_single, squared_distance,
-    FmapError, Real, RowMajor,
+    basis, check_basis, mapped_reference_rows, nearest_rows_in, nearest_rows_single, single,
+    squared_distance, FmapError, Real, RowMajor,
 };
 use crate::spectral::Spectrum;
 
@@ -341,16 +341,7 @@ pub fn point_to_point_in_cells(
     // In single precision (twice the throughput of the product and the distances; the image
     // of a vertex changes only where two candidates are as near as single-precision rounding
     // tells apart): the rows of `Φ_R Cᵀ`, and the test rows searched among them.
-    let single = |m: MatRef<'_, f64>| Mat::<f32>::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)] as f32);
-    let mut points = Mat::<f32>::zeros(reference.n_vertices, k);
-    crate::spectral::matmul_tall(
-        points.as_mut(),
-        Accum::Replace,
-        single(basis(reference, k)).as_ref(),
-        single(c).transpose(),
-        1.0,
-        Par::rayon(0),
-    );
+    let points = mapped_reference_rows(single(basis(reference, k)).as_ref(), single(c).as_ref());
     let queries = single(basis(test, k));
     let sample_points =
         Mat::<f32>::from_fn(reference_cells.samples.len(), k, |i, j| points[(reference_cells.samples[i], j)]);

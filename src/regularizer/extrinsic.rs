@@ -191,15 +191,13 @@ pub fn refine_extrinsic(
         // the gathered columns) and the projection of the displacement it asks for,
         // `X_R[T] − X_M` (last 3): a sum over test vertices, so after the first round only the
         // vertices whose image moved change it (when they are fewer than half).
-        let gather = |map: &[usize], vertices: &[usize]| {
-            Mat::from_fn(k + 3, vertices.len(), |j, i| {
-                let v = vertices[i];
-                if j < k {
-                    phi_r_rows[(j, map[v])]
-                } else {
-                    (x_r[(map[v], j - k)] - x_t[(v, j - k)]) as f32
-                }
-            })
+        // Entry `j` of test vertex `v`'s column under `map`.
+        let entry = |map: &[usize], v: usize, j: usize| {
+            if j < k {
+                phi_r_rows[(j, map[v])]
+            } else {
+                (x_r[(map[v], j - k)] - x_t[(v, j - k)]) as f32
+            }
         };
         let changed: Option<Vec<usize>> = last.as_ref().and_then(|(before, _)| {
             let changed: Vec<usize> = (0..n_t).filter(|&v| current[v] != before[v]).collect();
@@ -208,8 +206,9 @@ pub fn refine_extrinsic(
         let product = match (changed, last.take()) {
             (Some(changed), Some((before, mut product))) => {
                 let rows = Mat::from_fn(changed.len(), kw, |i, j| weighted[(changed[i], j)]);
-                let (now, then) = (gather(&current, &changed), gather(&before, &changed));
-                let change = Mat::from_fn(k + 3, changed.len(), |j, i| now[(j, i)] - then[(j, i)]);
+                let change = Mat::from_fn(k + 3, changed.len(), |j, i| {
+                    entry(&current, changed[i], j) - entry(&before, changed[i], j)
+                });
                 matmul(
                     product.as_mut(),
                     Accum::Add,
@@ -221,13 +220,13 @@ pub fn refine_extrinsic(
                 product
             }
             _ => {
-                let all: Vec<usize> = (0..n_t).collect();
+                let gathered = Mat::from_fn(k + 3, n_t, |j, v| entry(&current, v, j));
                 let mut product = Mat::<f32>::zeros(kw, k + 3);
                 matmul(
                     product.as_mut(),
                     Accum::Replace,
                     weighted.transpose(),
-                    gather(&current, &all).transpose(),
+                    gathered.transpose(),
                     1.0,
                     Par::rayon(0),
                 );
