@@ -625,14 +625,32 @@ pub fn run_protocol(
     // training shapes alone).
     let prepare_target = |s: usize| -> Result<PreparedShape, EvalError> {
         let r = &shapes[s];
-        let mut prepared =
-            PreparedShape::new(r.mesh.clone(), spectrum_of(s)?, params.regularizer.heat)?.serving_many();
-        if let Some(zp) = &zoomout_spectrum {
-            prepared =
-                prepared.with_zoomout_spectrum(Arc::new(spectrum_cached(&r.mesh, zp, cache.as_ref())?))?;
+        // The heat method's factorisation, the ZoomOut spectrum and the self-map need only the
+        // mesh: side by side.
+        let ((prepared, zoomout), self_map) = rayon::join(
+            || {
+                rayon::join(
+                    || -> Result<_, EvalError> {
+                        Ok(PreparedShape::new(r.mesh.clone(), spectrum_of(s)?, params.regularizer.heat)?)
+                    },
+                    || {
+                        zoomout_spectrum
+                            .as_ref()
+                            .map(|zp| spectrum_cached(&r.mesh, zp, cache.as_ref()))
+                            .transpose()
+                    },
+                )
+            },
+            || match (symmetry, params.regularizer.unflip) {
+                (Some(sym), Some(_)) => super::symmetry::vertex_symmetry(&r.mesh, &r.truth, sym).map(Some),
+                _ => Ok(None),
+            },
+        );
+        let mut prepared = prepared?.serving_many();
+        if let Some(sp) = zoomout? {
+            prepared = prepared.with_zoomout_spectrum(Arc::new(sp))?;
         }
-        if let (Some(sym), Some(_)) = (symmetry, params.regularizer.unflip) {
-            let self_map = super::symmetry::vertex_symmetry(&r.mesh, &r.truth, sym)?;
+        if let Some(self_map) = self_map? {
             prepared = prepared.with_symmetry(self_map.into())?;
         }
         Ok(prepared)
@@ -760,16 +778,24 @@ pub fn run_protocol(
         };
         let (part_mesh, part_kept) = (part.mesh.clone(), part.kept.clone());
         let t0 = Instant::now();
-        let mut test_prepared =
-            PreparedShape::new(part_mesh.clone(), part_spectrum, params.regularizer.heat)?;
-        if let Some(zp) = &zoomout_spectrum {
+        // The heat method's factorisation and the ZoomOut spectrum need only the mesh: side by
+        // side.
+        let zoomout_part = || -> Result<Option<Spectrum>, EvalError> {
+            let Some(zp) = &zoomout_spectrum else { return Ok(None) };
             // The same mesh and the same normalisation as the descriptors' spectrum, more pairs.
             let sp = spectrum_cached(&spectrum_mesh, zp, cache.as_ref())?;
-            let sp = match (kept.is_some(), params.partial_scale) {
+            Ok(Some(match (kept.is_some(), params.partial_scale) {
                 (false, _) => sp,
                 (true, true) => part.spectrum_for_matching(&spectrum_mesh, sp, ref_area).0,
                 (true, false) => sp.restricted(part.mesh.n_vertices()),
-            };
+            }))
+        };
+        let (test_prepared, zoomout_part) = rayon::join(
+            || PreparedShape::new(part_mesh.clone(), part_spectrum, params.regularizer.heat),
+            zoomout_part,
+        );
+        let mut test_prepared = test_prepared?;
+        if let Some(sp) = zoomout_part? {
             test_prepared = test_prepared.with_zoomout_spectrum(Arc::new(sp))?;
         }
         timings.prepare_s += t0.elapsed().as_secs_f64();
