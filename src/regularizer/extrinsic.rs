@@ -33,6 +33,8 @@
 //! the vote switches between maps and the jitter of a map carried through the labels, and the
 //! reach keeps a round driven by a wrong part from spreading it.
 
+use std::sync::Arc;
+
 use faer::{linalg::matmul::matmul, Accum, Mat, MatRef, Par};
 use kiddo::{immutable::float::kdtree::ImmutableKdTree, SquaredEuclidean};
 use serde::{Deserialize, Serialize};
@@ -155,32 +157,30 @@ pub fn refine_extrinsic(
     let k = tb.k().min(rb.k());
     let kd = params.deformation_k.min(tb.k());
     let x_t = unit_coordinates(&test.mesh);
-    let x_r = unit_coordinates(&reference.mesh);
+    let x_r = coordinate_tree(reference);
     let phi_t = basis(tb, k);
-    let phi_r = basis(rb, k);
-    let edge = mean_edge_step(&test.mesh, x_t.as_ref());
-    let scale = if edge > 0.0 { params.weight * mean_edge_step(&test.mesh, phi_t) / edge } else { 0.0 };
+    let (edge, spectral_edge) = *test.kept.edge_steps.get_or_insert_with(test, k, || {
+        (mean_edge_step(&test.mesh, x_t.as_ref()), mean_edge_step(&test.mesh, phi_t))
+    });
+    let scale = if edge > 0.0 { params.weight * spectral_edge / edge } else { 0.0 };
+    // The test's spectral rows and the reference's as contiguous columns (`k × n`), in single
+    // precision: the products of a round run in single precision (twice the throughput; what
+    // they feed is a nearest-neighbour search and a smooth deformation).
+    let phi_r_rows = basis_rows(reference, k);
     let search = if scale > 0.0 {
-        let coordinates: Vec<[f64; 3]> = (0..n_r).map(|r| [x_r[(r, 0)], x_r[(r, 1)], x_r[(r, 2)]]).collect();
-        Search::Joint(Box::new(Joint {
-            tree: ImmutableKdTree::new_from_slice(&coordinates),
-            coordinates,
-            scale,
-            test_rows: Mat::from_fn(k, n_t, |j, v| phi_t[(v, j)] as f32),
-        }))
+        Search::Joint(Box::new(Joint { reference: x_r.clone(), scale, test_rows: basis_rows(test, k) }))
     } else if n_r > params.samples {
         Search::Sampled(reference.sample_cells(params.samples)?)
     } else {
         Search::Spectral
     };
-    // The two products of a round run in single precision (twice the throughput; what they
-    // feed is a nearest-neighbour search and a smooth deformation): the test basis weighted
-    // by its mass (for the functional map and the deformation's projection), and the
-    // reference's spectral rows as contiguous columns (`k × n_r`).
+    // The test basis weighted by its mass (for the functional map and the deformation's
+    // projection).
     let kw = k.max(kd);
-    let phi_w = basis(tb, kw);
-    let weighted = Mat::from_fn(n_t, kw, |v, j| (tb.mass[v] * phi_w[(v, j)]) as f32);
-    let phi_r_rows = Mat::from_fn(k, n_r, |j, r| phi_r[(r, j)] as f32);
+    let weighted = test.kept.weighted.get_or_insert_with(test, kw, || {
+        let phi_w = basis(tb, kw);
+        Mat::from_fn(n_t, kw, |v, j| (tb.mass[v] * phi_w[(v, j)]) as f32)
+    });
     let phi_d = basis(tb, kd);
     let mut reference_rows = Mat::<f32>::zeros(k, n_r);
     let mut current = map.to_vec();
@@ -196,7 +196,7 @@ pub fn refine_extrinsic(
             if j < k {
                 phi_r_rows[(j, map[v])]
             } else {
-                (x_r[(map[v], j - k)] - x_t[(v, j - k)]) as f32
+                (x_r.coordinates[map[v]][j - k] - x_t[(v, j - k)]) as f32
             }
         };
         let changed: Option<Vec<usize>> = last.as_ref().and_then(|(before, _)| {
@@ -246,7 +246,7 @@ pub fn refine_extrinsic(
             Par::rayon(0),
         );
         // The rows of Φ_R Cᵀ, as the columns of C Φ_Rᵀ.
-        matmul(reference_rows.as_mut(), Accum::Replace, c, phi_r_rows.as_ref(), 1.0, Par::rayon(0));
+        matmul(reference_rows.as_mut(), Accum::Replace, c, (*phi_r_rows).as_ref(), 1.0, Par::rayon(0));
         let next = match &search {
             Search::Joint(joint) => {
                 let moved: Vec<[f64; 3]> =
@@ -277,16 +277,44 @@ fn wide_rows(columns: MatRef<'_, f32>) -> Mat<f64> {
 enum Search {
     Joint(Box<Joint>),
     Spectral,
-    Sampled(std::sync::Arc<SampleCells>),
+    Sampled(Arc<SampleCells>),
 }
 
-/// What the joint search keeps across rounds: the reference's coordinates (indexed by `tree`),
-/// their weight `scale`, and the test shape's spectral rows (column `m`: vertex `m`, `k × n_t`).
+/// What the joint search keeps across rounds: the reference's coordinates and their tree, their
+/// weight `scale`, and the test shape's spectral rows (column `m`: vertex `m`, `k × n_t`).
 struct Joint {
+    reference: Arc<CoordinateTree>,
+    scale: f64,
+    test_rows: Arc<Mat<f32>>,
+}
+
+/// A shape's coordinates in units of `√area` and their kd-tree (the joint search's bound).
+pub(super) struct CoordinateTree {
     coordinates: Vec<[f64; 3]>,
     tree: ImmutableKdTree<f64, u32, 3, 32>,
-    scale: f64,
-    test_rows: Mat<f32>,
+}
+
+impl CoordinateTree {
+    fn new(coordinates: Vec<[f64; 3]>) -> Self {
+        Self { tree: ImmutableKdTree::new_from_slice(&coordinates), coordinates }
+    }
+}
+
+/// `shape`'s [`CoordinateTree`], made once ([`PreparedShape`] keeps it).
+fn coordinate_tree(shape: &PreparedShape) -> Arc<CoordinateTree> {
+    shape.kept.coordinates.get_or_insert_with(shape, (), || {
+        let x = unit_coordinates(&shape.mesh);
+        CoordinateTree::new((0..x.nrows()).map(|r| [x[(r, 0)], x[(r, 1)], x[(r, 2)]]).collect())
+    })
+}
+
+/// The first `k` functions of `shape`'s ZoomOut basis as single-precision rows (`k × n`), made
+/// once per `k` ([`PreparedShape`] keeps them).
+fn basis_rows(shape: &PreparedShape, k: usize) -> Arc<Mat<f32>> {
+    shape.kept.rows.get_or_insert_with(shape, k, || {
+        let phi = basis(shape.zoomout_basis(), k);
+        Mat::from_fn(k, phi.nrows(), |j, v| phi[(v, j)] as f32)
+    })
 }
 
 /// Column `i` of an owned matrix as a slice.
@@ -306,20 +334,21 @@ fn nearest_joint(
     hint: &[usize],
 ) -> Vec<usize> {
     use rayon::prelude::*;
-    let (s2, test_rows) = (joint.scale * joint.scale, joint.test_rows.as_ref());
+    let (s2, test_rows, reference) =
+        (joint.scale * joint.scale, (*joint.test_rows).as_ref(), &joint.reference);
     (0..test_rows.ncols())
         .into_par_iter()
         .map(|m| {
             let (q, y) = (column(test_rows, m), &test_xyz[m]);
             let distance =
                 |r: usize, d2: f64| s2 * d2 + f64::from(squared_distance(q, column(reference_rows, r)));
-            let p = joint.coordinates[hint[m]];
+            let p = reference.coordinates[hint[m]];
             let nearer =
                 |a: (f64, usize), b: (f64, usize)| if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) { b } else { a };
             let mut best = (distance(hint[m], squared_distance(&p, y)), hint[m]);
-            let near = joint.tree.nearest_one::<SquaredEuclidean>(y);
+            let near = reference.tree.nearest_one::<SquaredEuclidean>(y);
             best = nearer(best, (distance(near.item as usize, near.distance), near.item as usize));
-            for n in joint.tree.within_unsorted::<SquaredEuclidean>(y, best.0 / s2) {
+            for n in reference.tree.within_unsorted::<SquaredEuclidean>(y, best.0 / s2) {
                 best = nearer(best, (distance(n.item as usize, n.distance), n.item as usize));
             }
             best.1
@@ -344,10 +373,9 @@ mod tests {
             |m: &Mat<f64>| (0..m.nrows()).map(|i| [m[(i, 0)], m[(i, 1)], m[(i, 2)]]).collect::<Vec<_>>();
         let (test_xyz, reference_xyz) = (xyz(&uniform(n_t, 3)), xyz(&uniform(n_r, 3)));
         let joint = Joint {
-            tree: ImmutableKdTree::new_from_slice(&reference_xyz),
-            coordinates: reference_xyz.clone(),
+            reference: Arc::new(CoordinateTree::new(reference_xyz.clone())),
             scale,
-            test_rows: test_rows.clone(),
+            test_rows: Arc::new(test_rows.clone()),
         };
         // Hints anywhere, most of them far from the answer.
         let hint: Vec<usize> = (0..n_t).map(|m| (m * 7919) % n_r).collect();

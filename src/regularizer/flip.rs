@@ -101,14 +101,19 @@ pub fn smoothed_orientation(test: &Mesh, orientation: &MapOrientation, rounds: u
 /// `rounds` passes of averaging each vertex's value with those of its face neighbours
 /// (`offsets`, `neighbours`: [`crate::mesh::face_neighbour_lists`]).
 pub(super) fn diffuse(offsets: &[usize], neighbours: &[usize], mut cur: Vec<f64>, rounds: usize) -> Vec<f64> {
-    let n = cur.len();
-    let mut next = vec![0.0; n];
+    use rayon::prelude::*;
+    // Each pass reads the last one only: its vertices in blocks side by side.
+    const BLOCK: usize = 2048;
+    let mut next = vec![0.0; cur.len()];
     for _ in 0..rounds {
-        for v in 0..n {
-            let nb = &neighbours[offsets[v]..offsets[v + 1]];
-            let sum: f64 = nb.iter().map(|&u| cur[u]).sum();
-            next[v] = (cur[v] + sum) / (1 + nb.len()) as f64;
-        }
+        next.par_chunks_mut(BLOCK).enumerate().for_each(|(b, block)| {
+            for (i, out) in block.iter_mut().enumerate() {
+                let v = b * BLOCK + i;
+                let nb = &neighbours[offsets[v]..offsets[v + 1]];
+                let sum: f64 = nb.iter().map(|&u| cur[u]).sum();
+                *out = (cur[v] + sum) / (1 + nb.len()) as f64;
+            }
+        });
         std::mem::swap(&mut cur, &mut next);
     }
     cur

@@ -29,6 +29,7 @@ mod error;
 mod extrinsic;
 mod flip;
 mod growth;
+mod memo;
 mod orientation;
 mod pair;
 mod partial;
@@ -74,9 +75,6 @@ use crate::{
     spectral::Spectrum,
 };
 
-/// Sample cells made for a shape: the sample count, the mesh they were made on, the cells.
-type CellsEntry = (usize, std::sync::Weak<Mesh>, Arc<fmap::SampleCells>);
-
 /// A shape ready for regularisation: mesh, spectrum and a heat-method factorisation.
 pub struct PreparedShape {
     /// The mesh.
@@ -95,11 +93,8 @@ pub struct PreparedShape {
     /// repeats) for the ZoomOut refinement ([`refine_zoomout`]), when given: ZoomOut's precision
     /// grows with its final basis, the descriptors need only the first K.
     pub zoomout_spectrum: Option<Arc<Spectrum>>,
-    /// Farthest-point samples and their cells made so far, per sample count (and the mesh they
-    /// were made on): every refinement of a map from or onto this shape reuses them.
-    /// (The weak handle keeps the mesh's allocation, so its address cannot be reused while it is
-    /// held: a replaced `mesh` never matches.)
-    cells: std::sync::Mutex<Vec<CellsEntry>>,
+    /// What regularisations from or onto this shape make once and reuse (the `memo` module).
+    kept: memo::Kept,
 }
 
 impl PreparedShape {
@@ -120,23 +115,14 @@ impl PreparedShape {
             columns: columns::ColumnCache::new(Self::KEPT_COLUMNS),
             symmetry: None,
             zoomout_spectrum: None,
-            cells: Default::default(),
+            kept: Default::default(),
         })
     }
 
     /// `n` Euclidean farthest-point samples of the shape and their cells ([`sample_cells`]),
     /// made once per `n` and then reused.
     pub fn sample_cells(&self, n: usize) -> Result<Arc<fmap::SampleCells>, Error> {
-        let mesh = Arc::as_ptr(&self.mesh);
-        let lock = || self.cells.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((_, _, c)) = lock().iter().find(|(k, m, _)| *k == n && m.as_ptr() == mesh) {
-            return Ok(c.clone());
-        }
-        let made = Arc::new(sample_cells(&self.mesh, n)?);
-        let mut cache = lock();
-        cache.retain(|(_, m, _)| m.as_ptr() == mesh);
-        cache.push((n, Arc::downgrade(&self.mesh), made.clone()));
-        Ok(made)
+        self.kept.cells.get_or_make(self, n, || sample_cells(&self.mesh, n))
     }
 
     /// The same shape with a larger spectrum for ZoomOut (see
