@@ -22,13 +22,19 @@ pub(super) fn anchor_consistent_map(
     if s == 0 {
         return vec![None; n];
     }
+    // Each vertex's distances as a contiguous row (the columns stride by the vertex count).
+    let rows = |fields: &Mat<f64>| -> Vec<f64> {
+        (0..fields.nrows()).flat_map(|v| (0..s).map(move |j| fields[(v, j)])).collect()
+    };
+    let (test_rows, ref_rows) = rayon::join(|| rows(test_fields), || rows(ref_fields));
     (0..n)
         .into_par_iter()
         .map(|m| {
             let mut best = (f64::INFINITY, None);
+            let a = &test_rows[m * s..(m + 1) * s];
             posterior.for_each_entry(m, &mut |r, _| {
-                let cost: f64 =
-                    (0..s).map(|j| weights[j] * (test_fields[(m, j)] - ref_fields[(r, j)]).abs()).sum();
+                let b = &ref_rows[r * s..(r + 1) * s];
+                let cost: f64 = (0..s).map(|j| weights[j] * (a[j] - b[j]).abs()).sum();
                 if cost < best.0 {
                     best = (cost, Some(r));
                 }
@@ -68,7 +74,21 @@ pub(super) fn grow_anchors(
     } else {
         Vec::new()
     };
-    let setup = GrowthSetup { samples, a_fields, orientation, boundary, extra, prior };
+    // Each candidate's orientation term is the same in every round and run: made once.
+    let turning = (p.orientation > 0.0 || p.reorient > 0.0).then(|| {
+        use rayon::prelude::*;
+        (0..test.mesh.n_vertices())
+            .into_par_iter()
+            .map(|m| {
+                let mut terms = Vec::new();
+                for_each_candidate(posterior, prior, &extra, m, &mut |r, _| {
+                    terms.push((0.5 * (1.0 - orientation.agreement(m, r))) as f32);
+                });
+                terms
+            })
+            .collect()
+    });
+    let setup = GrowthSetup { samples, a_fields, orientation, boundary, extra, prior, turning };
     // Reference columns are shared by both runs: the second run's rounds mostly revisit the
     // targets of the first, and each costs a heat-method solve.
     let mut ref_cols = std::collections::HashMap::new();
@@ -108,6 +128,37 @@ struct GrowthSetup<'a> {
     /// On a single view, each posterior entry's cost in a placement ([`prior_costs`]; ∞: not
     /// tried); `None` elsewhere.
     prior: Option<&'a [Vec<f32>]>,
+    /// Per test vertex, each candidate's orientation term `(1 − agreement) / 2` in the order of
+    /// [`for_each_candidate`]; `None` when no run weighs it.
+    turning: Option<Vec<Vec<f32>>>,
+}
+
+/// Each candidate reference vertex of test vertex `m` with its prior cost, in the order a
+/// placement considers them: the posterior's entries (with `prior`, a single view's, only those
+/// of finite cost), then `extra` at no cost.
+fn for_each_candidate(
+    posterior: &LabelledPosterior<'_>,
+    prior: Option<&[Vec<f32>]>,
+    extra: &[usize],
+    m: usize,
+    f: &mut dyn FnMut(usize, f32),
+) {
+    match prior {
+        Some(costs) => {
+            let mut entry = costs[m].iter();
+            posterior.for_each_entry(m, &mut |r, _| {
+                let cost = *entry.next().unwrap_or(&0.0);
+                // Beyond the vertex's most probable entries: not a candidate.
+                if cost.is_finite() {
+                    f(r, cost);
+                }
+            });
+        }
+        None => posterior.for_each_entry(m, &mut |r, _| f(r, 0.0)),
+    }
+    for &r in extra {
+        f(r, 0.0);
+    }
 }
 
 /// The placement cost of every posterior entry, `weight · min(−ln(p / p_max), cap)` per test
@@ -192,7 +243,7 @@ fn grow_rounds(
 ) -> Result<Vec<(Vec<usize>, usize)>, Error> {
     use rayon::prelude::*;
     let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
-    let GrowthSetup { samples, a_fields, orientation, boundary, extra, prior } = setup;
+    let GrowthSetup { samples, a_fields, boundary, extra, prior, turning, .. } = setup;
     let trust = |d: f64, a: usize, b: usize| boundary.as_ref().map_or(1.0, |db| pair_trust(d, db[a], db[b]));
     let s = samples.len();
     let ts = 1.0 / test.sqrt_area();
@@ -272,11 +323,11 @@ fn grow_rounds(
                 let norm = 1.0 / wm.iter().sum::<f32>().max(f32::MIN_POSITIVE);
                 let mut best = [(f32::INFINITY, map[m]); MAX_RUNS];
                 let mut tables: [Vec<(u32, f32)>; MAX_RUNS] = Default::default();
+                let mut terms = turning.as_ref().filter(|_| turns).map(|t| t[m].iter());
                 let mut consider = |r: usize, prior_cost: f32| {
                     let br = &b[r * k..(r + 1) * k];
                     let distance = weighted_l1(am, wm, br) * norm + prior_cost;
-                    let disagreement =
-                        if turns { (0.5 * (1.0 - orientation.agreement(m, r))) as f32 } else { 0.0 };
+                    let disagreement = terms.as_mut().and_then(|t| t.next()).copied().unwrap_or(0.0);
                     for (g, &gamma) in gammas.iter().enumerate() {
                         let mut cost = distance;
                         if gamma > 0.0 {
@@ -290,22 +341,7 @@ fn grow_rounds(
                         }
                     }
                 };
-                match prior {
-                    Some(costs) => {
-                        let mut entry = costs[m].iter();
-                        posterior.for_each_entry(m, &mut |r, _| {
-                            let cost = *entry.next().unwrap_or(&0.0);
-                            // Beyond the vertex's most probable entries: not a candidate.
-                            if cost.is_finite() {
-                                consider(r, cost);
-                            }
-                        });
-                    }
-                    None => posterior.for_each_entry(m, &mut |r, _| consider(r, 0.0)),
-                }
-                for &r in extra {
-                    consider(r, 0.0);
-                }
+                for_each_candidate(posterior, *prior, extra, m, &mut consider);
                 let [t0, t1] = tables;
                 [(best[0].1, t0), (best[1].1, t1)]
             })
@@ -391,8 +427,47 @@ fn weighted_l1_impl(x: &[f32], w: &[f32], y: &[f32]) -> f32 {
 
 #[cfg(test)]
 mod tests {
-    use super::{prior_costs, weighted_l1, weighted_l1_impl};
+    use faer::Mat;
+    use rand::{Rng, SeedableRng};
+
+    use super::{anchor_consistent_map, prior_costs, weighted_l1, weighted_l1_impl, LabelledPosterior};
     use crate::forest::Prediction;
+
+    #[test]
+    fn each_vertex_is_placed_on_its_candidate_nearest_in_weighted_anchor_distances() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let (n_t, n_r, s, per_vertex) = (60, 45, 7, 6);
+        let mut uniform = |n: usize| Mat::from_fn(n, s, |_, _| rng.random_range(0.0..1.0));
+        let (a, b) = (uniform(n_t), uniform(n_r));
+        let weights: Vec<f64> = (0..s).map(|j| 1.0 / (1.0 + j as f64)).collect();
+        // Each test vertex's candidates: labels (read as the reference vertices) spread over
+        // the reference.
+        let labels: Vec<u32> = (0..n_t)
+            .flat_map(|m| {
+                let mut row: Vec<u32> = (0..per_vertex).map(|j| ((m * 11 + j * 7) % n_r) as u32).collect();
+                row.sort_unstable();
+                row
+            })
+            .collect();
+        let offsets: Vec<usize> = (0..=n_t).map(|m| m * per_vertex).collect();
+        let probs = vec![1.0 / per_vertex as f32; labels.len()];
+        let prediction = Prediction::from_parts(n_r, offsets, labels.clone(), probs).unwrap();
+        let posterior = LabelledPosterior { prediction: &prediction, label_to_vertex: None };
+        let placed = anchor_consistent_map(&a, &b, &weights, &posterior);
+        for (m, &got) in placed.iter().enumerate() {
+            let cost = |r: usize| (0..s).map(|j| weights[j] * (a[(m, j)] - b[(r, j)]).abs()).sum::<f64>();
+            let candidates = labels[m * per_vertex..(m + 1) * per_vertex].iter().map(|&l| l as usize);
+            // The first of the cheapest, in the posterior's order.
+            let best = candidates.fold((f64::INFINITY, None), |best, r| {
+                if cost(r) < best.0 {
+                    (cost(r), Some(r))
+                } else {
+                    best
+                }
+            });
+            assert_eq!(got, best.1, "test vertex {m}");
+        }
+    }
 
     #[test]
     fn a_views_placements_try_only_each_vertexs_most_probable_entries() {
