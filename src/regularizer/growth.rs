@@ -6,6 +6,7 @@ use super::{
     smoothing::smooth_placement,
     *,
 };
+use crate::fmap::RowMajor;
 
 /// For each test vertex, the candidate reference vertex whose normalised distances to the
 /// anchors best match the vertex's own (weighted L1); `None` where there is no candidate at a
@@ -23,17 +24,15 @@ pub(super) fn anchor_consistent_map(
         return vec![None; n];
     }
     // Each vertex's distances as a contiguous row (the columns stride by the vertex count).
-    let rows = |fields: &Mat<f64>| -> Vec<f64> {
-        (0..fields.nrows()).flat_map(|v| (0..s).map(move |j| fields[(v, j)])).collect()
-    };
-    let (test_rows, ref_rows) = rayon::join(|| rows(test_fields), || rows(ref_fields));
+    let (test_rows, ref_rows) =
+        rayon::join(|| RowMajor::new(test_fields.as_ref()), || RowMajor::new(ref_fields.as_ref()));
     (0..n)
         .into_par_iter()
         .map(|m| {
             let mut best = (f64::INFINITY, None);
-            let a = &test_rows[m * s..(m + 1) * s];
+            let a = test_rows.row(m);
             posterior.for_each_entry(m, &mut |r, _| {
-                let b = &ref_rows[r * s..(r + 1) * s];
+                let b = ref_rows.row(r);
                 let cost: f64 = (0..s).map(|j| weights[j] * (a[j] - b[j]).abs()).sum();
                 if cost < best.0 {
                     best = (cost, Some(r));
