@@ -1259,7 +1259,7 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
         tcsv.push(',');
         tcsv.push_str(column);
     }
-    tcsv.push('\n');
+    tcsv.push_str(",scan_cpu_s\n");
     for t in &report.tests {
         let _ = write!(
             tcsv,
@@ -1275,7 +1275,7 @@ fn write_outputs(out: &Path, class: &Class, report: &ProtocolReport, steps: usiz
         for (_, _, secs) in t.timings.stages() {
             let _ = write!(tcsv, ",{secs:.4}");
         }
-        tcsv.push('\n');
+        let _ = writeln!(tcsv, ",{:.4}", t.timings.scan_cpu_s);
     }
     write_file(&out.join("timings.csv"), &tcsv)?;
 
