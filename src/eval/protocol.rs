@@ -61,9 +61,11 @@ use crate::{
     spectral::{spectrum_cached, Spectrum, SpectrumCache, SpectrumParams},
 };
 
-/// Relays kept prepared between tests besides those a test votes with (each holds a spectrum
-/// and a heat factorisation).
-const RELAYS_KEPT: usize = 2;
+/// Relays kept prepared between tests besides those a test votes with or tries (each holds a
+/// spectrum, a heat factorisation and its kept distance columns): as many as a doubted map
+/// votes with, so that the poses a doubt tries do not send away the relay most tests go
+/// through (it would be prepared again, its columns solved again).
+const RELAYS_KEPT: usize = DOUBT_VOTES;
 
 /// CPU seconds (user and system, every thread) the process has used so far; NaN where the
 /// platform does not report them.

@@ -257,6 +257,9 @@ fn grow_rounds(
     // test distances and weights (n_t × k), reference distances (n_r × k).
     let (mut a, mut w, mut b) =
         (vec![0f32; n_t * n_keep], vec![0f32; n_t * n_keep], vec![0f32; n_r * n_keep]);
+    // Each sample's anchor weight at every test vertex (locality × trust), once it was kept
+    // (empty before).
+    let mut sample_weights: Vec<Vec<f32>> = vec![Vec::new(); s];
     // One round from `map`: a placement per orientation weight in `gammas`.
     let mut round = |map: &[usize], gammas: &[f64], last: bool| -> Result<Vec<Vec<usize>>, Error> {
         let targets: Vec<usize> = samples.iter().map(|&v| map[v]).collect();
@@ -293,14 +296,31 @@ fn grow_rounds(
         let kept: Vec<usize> = consistency[..n_keep].iter().map(|c| c.1).collect();
         let k = kept.len();
         debug_assert_eq!(k, n_keep);
+        // A sample's weights depend on the sample alone: made the first round it is kept.
+        let fresh: Vec<usize> = kept.iter().copied().filter(|&i| sample_weights[i].is_empty()).collect();
+        let made: Vec<Vec<f32>> = fresh
+            .par_iter()
+            .map(|&i| {
+                let (col, sample) = (a_col(i), samples[i]);
+                (0..n_t)
+                    .map(|v| {
+                        let d = f64::from(col[v]) * ts;
+                        let local = if p.locality > 0.0 { (-d / p.locality).exp() } else { 1.0 };
+                        (local * trust(d, v, sample)) as f32
+                    })
+                    .collect()
+            })
+            .collect();
+        for (i, weights) in fresh.into_iter().zip(made) {
+            sample_weights[i] = weights;
+        }
         // Filled a row (vertex) at a time, in parallel.
-        let kept_cols: Vec<(&[f32], usize)> = kept.iter().map(|&i| (a_col(i), samples[i])).collect();
+        let kept_cols: Vec<(&[f32], &[f32])> =
+            kept.iter().map(|&i| (a_col(i), &sample_weights[i][..])).collect();
         a.par_chunks_mut(k).zip(w.par_chunks_mut(k)).enumerate().for_each(|(v, (av, wv))| {
-            for (j, &(col, sample)) in kept_cols.iter().enumerate() {
-                let d = f64::from(col[v]) * ts;
-                av[j] = d as f32;
-                let local = if p.locality > 0.0 { (-d / p.locality).exp() } else { 1.0 };
-                wv[j] = (local * trust(d, v, sample)) as f32;
+            for (j, &(col, weights)) in kept_cols.iter().enumerate() {
+                av[j] = (f64::from(col[v]) * ts) as f32;
+                wv[j] = weights[v];
             }
         });
         let ref_kept: Vec<&[f32]> = kept.iter().map(|&i| &ref_cols[&targets[i]][..]).collect();
@@ -340,7 +360,18 @@ fn grow_rounds(
                         }
                     }
                 };
-                for_each_candidate(posterior, *prior, extra, m, &mut consider);
+                // Each candidate's reference row is a cache miss of its own: fetched while the
+                // candidate before it is costed (the same candidates in the same order).
+                let mut pending: Option<(usize, f32)> = None;
+                for_each_candidate(posterior, *prior, extra, m, &mut |r, prior_cost| {
+                    prefetch(&b[r * k..(r + 1) * k]);
+                    if let Some((r, prior_cost)) = pending.replace((r, prior_cost)) {
+                        consider(r, prior_cost);
+                    }
+                });
+                if let Some((r, prior_cost)) = pending {
+                    consider(r, prior_cost);
+                }
                 let [t0, t1] = tables;
                 [(best[0].1, t0), (best[1].1, t1)]
             })
@@ -365,6 +396,23 @@ fn grow_rounds(
         out.push((map, n_keep));
     }
     Ok(out)
+}
+
+/// Asks the CPU to bring `values` into its cache ahead of their use (a hint: nothing else
+/// changes).
+#[inline(always)]
+fn prefetch(values: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        // One address per 64-byte line the values span, and their last.
+        for i in (0..values.len()).step_by(16).chain(values.len().checked_sub(1)) {
+            // SAFETY: a prefetch reads nothing and faults on no address; this one is in bounds.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(values.as_ptr().add(i).cast::<i8>()) };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = values;
 }
 
 /// Growth runs at most: the ordinary one and the re-orienting one.

@@ -1110,10 +1110,22 @@ pub fn dense_map(
         .filter(|g| (g.part_prior > 0.0 || g.part_candidates > 0) && partial::is_small_part(test, reference))
         .map(|g| growth::prior_costs(prediction, g.part_prior, g.part_candidates));
     let prior = prior.as_deref();
-    let first = dense_of_equilibrium(test, reference, prediction, label_to_vertex, sparse, params, prior)?;
+    // The predicted functional map depends on the game only through whether it read the
+    // prediction as mirrored: both games' completions share it.
+    let pulled = std::cell::RefCell::new([None, None]);
+    let first =
+        dense_of_equilibrium(test, reference, prediction, label_to_vertex, sparse, params, prior, &pulled)?;
     let Some(alternative) = sparse.alternative.as_deref() else { return Ok(first) };
-    let second =
-        dense_of_equilibrium(test, reference, prediction, label_to_vertex, alternative, params, prior)?;
+    let second = dense_of_equilibrium(
+        test,
+        reference,
+        prediction,
+        label_to_vertex,
+        alternative,
+        params,
+        prior,
+        &pulled,
+    )?;
     let table = posterior_table(prediction, label_to_vertex, sparse, reference)?;
     let posterior = LabelledPosterior { prediction, label_to_vertex: table.as_deref().or(label_to_vertex) };
     // The whole map is chosen: region by region (as `select_by_posterior` does for the
@@ -1156,8 +1168,14 @@ fn posterior_table(
     }
 }
 
+/// The predicted functional maps made so far for a dense map, indexed by whether the prediction
+/// was read as mirrored ([`SparseMatches::prediction_mirrored`]).
+type PulledFmaps = std::cell::RefCell<[Option<Arc<Mat<f64>>>; 2]>;
+
 /// The dense map completed from one game's matches; `prior`: the single view's placement costs
-/// ([`growth::prior_costs`]), `None` on other scans.
+/// ([`growth::prior_costs`]), `None` on other scans; `pulled`: the predicted functional maps
+/// made so far (one is made when missing).
+#[allow(clippy::too_many_arguments)]
 fn dense_of_equilibrium(
     test: &PreparedShape,
     reference: &PreparedShape,
@@ -1166,6 +1184,7 @@ fn dense_of_equilibrium(
     sparse: &SparseMatches,
     params: &RegularizerParams,
     prior: Option<&[Vec<f32>]>,
+    pulled: &PulledFmaps,
 ) -> Result<DenseMap, Error> {
     check_inputs(test, reference, prediction, label_to_vertex, params)?;
     let n_ref = reference.mesh.n_vertices();
@@ -1178,7 +1197,16 @@ fn dense_of_equilibrium(
     // 5. Functional maps.
     let t0 = Instant::now();
     let (kt, kr) = (params.fmap.k_test.min(test.spectrum.k()), params.fmap.k_ref.min(reference.spectrum.k()));
-    let fmap_predicted = fmap::pullback_fmap(&test.spectrum, &reference.spectrum, kt, kr, &posterior)?;
+    let slot = usize::from(sparse.prediction_mirrored);
+    let kept = pulled.borrow()[slot].clone();
+    let fmap_predicted = match kept {
+        Some(c) => c,
+        None => {
+            let c = Arc::new(fmap::pullback_fmap(&test.spectrum, &reference.spectrum, kt, kr, &posterior)?);
+            pulled.borrow_mut()[slot] = Some(c.clone());
+            c
+        }
+    };
     let (a_fields, b_fields) = (test_fields, ref_fields);
     if a_fields.ncols() != game.matches.len() || b_fields.nrows() != n_ref {
         return Err(Error::SizeMismatch("sparse matches of another shape pair".into()));
@@ -1188,7 +1216,7 @@ fn dense_of_equilibrium(
     let weights: Vec<f64> = game.matches.iter().map(|m| m.weight).collect();
     let fmap_params = FmapParams { k_test: kt, k_ref: kr, ..params.fmap.clone() };
     let c = fmap::solve_regularised_fmap(
-        fmap_predicted.as_ref(),
+        Mat::as_ref(&fmap_predicted),
         a.as_ref(),
         b.as_ref(),
         &weights,
@@ -1273,7 +1301,7 @@ fn dense_of_equilibrium(
         fmap_map,
         grown_map,
         forest_map,
-        fmap_predicted,
+        fmap_predicted: Mat::clone(&fmap_predicted),
         fmap: c,
         matches: sparse.matches.clone(),
         orientation_score: sparse.orientation_score,
