@@ -1110,12 +1110,13 @@ pub fn dense_map(
         .filter(|g| (g.part_prior > 0.0 || g.part_candidates > 0) && partial::is_small_part(test, reference))
         .map(|g| growth::prior_costs(prediction, g.part_prior, g.part_candidates));
     let prior = prior.as_deref();
-    // The predicted functional map depends on the game only through whether it read the
-    // prediction as mirrored: both games' completions share it.
-    let pulled = std::cell::RefCell::new([None, None]);
     let first =
-        dense_of_equilibrium(test, reference, prediction, label_to_vertex, sparse, params, prior, &pulled)?;
+        dense_of_equilibrium(test, reference, prediction, label_to_vertex, sparse, params, prior, None)?;
     let Some(alternative) = sparse.alternative.as_deref() else { return Ok(first) };
+    // The predicted functional map depends on the game only through whether it read the
+    // prediction as mirrored: the second game's completion takes the first's when they agree.
+    let predicted =
+        (alternative.prediction_mirrored == sparse.prediction_mirrored).then_some(&first.fmap_predicted);
     let second = dense_of_equilibrium(
         test,
         reference,
@@ -1124,7 +1125,7 @@ pub fn dense_map(
         alternative,
         params,
         prior,
-        &pulled,
+        predicted,
     )?;
     let table = posterior_table(prediction, label_to_vertex, sparse, reference)?;
     let posterior = LabelledPosterior { prediction, label_to_vertex: table.as_deref().or(label_to_vertex) };
@@ -1168,13 +1169,9 @@ fn posterior_table(
     }
 }
 
-/// The predicted functional maps made so far for a dense map, indexed by whether the prediction
-/// was read as mirrored ([`SparseMatches::prediction_mirrored`]).
-type PulledFmaps = std::cell::RefCell<[Option<Arc<Mat<f64>>>; 2]>;
-
 /// The dense map completed from one game's matches; `prior`: the single view's placement costs
-/// ([`growth::prior_costs`]), `None` on other scans; `pulled`: the predicted functional maps
-/// made so far (one is made when missing).
+/// ([`growth::prior_costs`]), `None` on other scans; `predicted`: the predicted functional map
+/// when already made (from the same prediction, read as mirrored or not as `sparse` reads it).
 #[allow(clippy::too_many_arguments)]
 fn dense_of_equilibrium(
     test: &PreparedShape,
@@ -1184,7 +1181,7 @@ fn dense_of_equilibrium(
     sparse: &SparseMatches,
     params: &RegularizerParams,
     prior: Option<&[Vec<f32>]>,
-    pulled: &PulledFmaps,
+    predicted: Option<&Mat<f64>>,
 ) -> Result<DenseMap, Error> {
     check_inputs(test, reference, prediction, label_to_vertex, params)?;
     let n_ref = reference.mesh.n_vertices();
@@ -1197,15 +1194,9 @@ fn dense_of_equilibrium(
     // 5. Functional maps.
     let t0 = Instant::now();
     let (kt, kr) = (params.fmap.k_test.min(test.spectrum.k()), params.fmap.k_ref.min(reference.spectrum.k()));
-    let slot = usize::from(sparse.prediction_mirrored);
-    let kept = pulled.borrow()[slot].clone();
-    let fmap_predicted = match kept {
-        Some(c) => c,
-        None => {
-            let c = Arc::new(fmap::pullback_fmap(&test.spectrum, &reference.spectrum, kt, kr, &posterior)?);
-            pulled.borrow_mut()[slot] = Some(c.clone());
-            c
-        }
+    let fmap_predicted = match predicted {
+        Some(c) => c.clone(),
+        None => fmap::pullback_fmap(&test.spectrum, &reference.spectrum, kt, kr, &posterior)?,
     };
     let (a_fields, b_fields) = (test_fields, ref_fields);
     if a_fields.ncols() != game.matches.len() || b_fields.nrows() != n_ref {
@@ -1216,7 +1207,7 @@ fn dense_of_equilibrium(
     let weights: Vec<f64> = game.matches.iter().map(|m| m.weight).collect();
     let fmap_params = FmapParams { k_test: kt, k_ref: kr, ..params.fmap.clone() };
     let c = fmap::solve_regularised_fmap(
-        Mat::as_ref(&fmap_predicted),
+        fmap_predicted.as_ref(),
         a.as_ref(),
         b.as_ref(),
         &weights,
@@ -1301,7 +1292,7 @@ fn dense_of_equilibrium(
         fmap_map,
         grown_map,
         forest_map,
-        fmap_predicted: Mat::clone(&fmap_predicted),
+        fmap_predicted,
         fmap: c,
         matches: sparse.matches.clone(),
         orientation_score: sparse.orientation_score,
