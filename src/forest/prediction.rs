@@ -132,9 +132,7 @@ impl Prediction {
     /// The most probable label of each vertex (ties go to the smallest label); `None` for a
     /// vertex with an empty posterior.
     pub fn map_labels(&self) -> Vec<Option<u32>> {
-        // A view's posterior holds some 500 labels a vertex: one pass over them, in parallel.
         (0..self.n_vertices())
-            .into_par_iter()
             .map(|v| {
                 let (l, p) = self.posterior(v);
                 let mut best: Option<(u32, f32)> = None;

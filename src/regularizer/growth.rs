@@ -202,13 +202,13 @@ fn reference_columns(
     reference: &PreparedShape,
     targets: &[usize],
 ) -> Result<std::collections::HashMap<usize, Vec<f32>>, Error> {
-    use rayon::prelude::*;
     let rs = 1.0 / reference.sqrt_area();
     let f = reference.distance_columns(targets)?;
-    // Some 100 columns of the reference's size each round: scaled side by side.
-    let scaled: Vec<Vec<f32>> =
-        f.par_iter().map(|col| col.iter().map(|&d| (f64::from(d) * rs) as f32).collect()).collect();
-    Ok(targets.iter().copied().zip(scaled).collect())
+    Ok(targets
+        .iter()
+        .zip(f)
+        .map(|(&t, col)| (t, col.iter().map(|&d| (f64::from(d) * rs) as f32).collect()))
+        .collect())
 }
 
 /// What anchor growth returns.

@@ -33,8 +33,6 @@ pub(super) struct Kept {
     pub(super) edge_steps: Memo<usize, (f64, f64)>,
     /// The coordinates in units of `√area` and their kd-tree.
     pub(super) coordinates: Memo<(), CoordinateTree>,
-    /// Whether the mesh has a boundary (asked several times a regularisation of a part).
-    pub(super) open: Memo<(), bool>,
 }
 
 /// The mesh and spectra of a prepared shape a value was made from.

@@ -796,24 +796,13 @@ impl SoftCorrespondence for LabelledPosterior<'_> {
 
 /// Symmetrised, normalised distance matrix among `points` from their columns.
 fn pairwise(fields: &[Arc<[f32]>], points: &[usize], scale: f64) -> Vec<f64> {
-    use rayon::prelude::*;
     let s = points.len();
-    // Row i gathers from field i alone (`g[i][j]`: from point i to point j), so each row reads
-    // one column, then the two directions are averaged; rows side by side. (Read the other way,
-    // `fields[j][points[i]]` is a cache miss per entry, and the game's ~1,000 reference
-    // candidates make a million of them.)
-    let mut g = vec![0f32; s * s];
-    g.par_chunks_mut(s.max(1)).zip(fields).for_each(|(row, field)| {
-        for (x, &p) in row.iter_mut().zip(points) {
-            *x = field[p];
-        }
-    });
     let mut d = vec![0.0; s * s];
-    d.par_chunks_mut(s.max(1)).enumerate().for_each(|(i, row)| {
-        for (j, x) in row.iter_mut().enumerate() {
-            *x = 0.5 * (f64::from(g[i * s + j]) + f64::from(g[j * s + i])) / scale;
+    for i in 0..s {
+        for j in 0..s {
+            d[i * s + j] = 0.5 * (f64::from(fields[i][points[j]]) + f64::from(fields[j][points[i]])) / scale;
         }
-    });
+    }
     d
 }
 
@@ -1460,30 +1449,4 @@ pub(super) fn finish_refinement(
         map = local_rigid(&test.mesh, &reference.mesh, &map, rigid)?;
     }
     Ok(map)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn pairwise_distances_average_both_directions_bit_for_bit() {
-        // 37 points on a 100-vertex "shape": field i holds distances from point i.
-        let (s, n) = (37, 100);
-        let points: Vec<usize> = (0..s).map(|i| (i * 7 + 3) % n).collect();
-        let fields: Vec<Arc<[f32]>> = (0..s)
-            .map(|i| (0..n).map(|v| ((i * 31 + v * 17) % 101) as f32 * 0.37 + i as f32).collect())
-            .collect();
-        let scale = 2.5;
-        let d = pairwise(&fields, &points, scale);
-        assert_eq!(d.len(), s * s);
-        for i in 0..s {
-            for j in 0..s {
-                let want = 0.5 * (f64::from(fields[i][points[j]]) + f64::from(fields[j][points[i]])) / scale;
-                assert_eq!(d[i * s + j].to_bits(), want.to_bits(), "entry ({i}, {j})");
-                assert_eq!(d[i * s + j].to_bits(), d[j * s + i].to_bits(), "symmetric at ({i}, {j})");
-            }
-        }
-        assert!(pairwise(&[], &[], scale).is_empty());
-    }
 }

@@ -88,7 +88,7 @@ pub const MIN_REFINED_AREA_RATIO: f64 = 0.5;
 /// area (a single view): the whole body's spectral cues fail there, so it is not refined and
 /// the game's orientation is read extrinsically.
 pub(super) fn is_small_part(test: &PreparedShape, reference: &PreparedShape) -> bool {
-    partial_area_ratio(test, reference).is_some_and(|r| r < MIN_REFINED_AREA_RATIO)
+    is_small_part_mesh(&test.mesh, &reference.mesh)
 }
 
 /// [`is_small_part`] of the meshes.
@@ -112,26 +112,14 @@ pub fn view_orientation(test: &Mesh, onto: &Mesh, map: &[usize]) -> Option<f64> 
 /// and less than [`PARTIAL_AREA_RATIO`] of the area; the scan is taken to be at the reference's
 /// scale, as [`super::normalising_area`] does), `None` otherwise.
 pub fn partial_area_ratio(test: &PreparedShape, reference: &PreparedShape) -> Option<f64> {
-    // Whether the test shape is open is kept: a regularisation asks it several times.
-    let open = || *test.kept.open.get_or_insert_with(test, (), || is_open(&test.mesh));
-    area_ratio_of_part(&test.mesh, &reference.mesh, open)
+    part_area_ratio(&test.mesh, &reference.mesh)
 }
 
 /// [`partial_area_ratio`] of the meshes.
 fn part_area_ratio(test: &Mesh, reference: &Mesh) -> Option<f64> {
-    area_ratio_of_part(test, reference, || is_open(test))
-}
-
-/// The area ratio of `test` to `reference` when it is under [`PARTIAL_AREA_RATIO`] and `open()`
-/// (asked only then).
-fn area_ratio_of_part(test: &Mesh, reference: &Mesh, open: impl FnOnce() -> bool) -> Option<f64> {
     let ratio = test.surface_area() / reference.surface_area();
-    (ratio.is_finite() && ratio > 0.0 && ratio < PARTIAL_AREA_RATIO && open()).then_some(ratio)
-}
-
-/// Whether `mesh` has a boundary loop.
-fn is_open(mesh: &Mesh) -> bool {
-    mesh.summary().n_boundary_loops > 0
+    (ratio.is_finite() && ratio > 0.0 && ratio < PARTIAL_AREA_RATIO && test.summary().n_boundary_loops > 0)
+        .then_some(ratio)
 }
 
 /// ZoomOut of `map` (test vertex → reference vertex) for a partial test shape, by `params`
