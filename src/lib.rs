@@ -59,6 +59,7 @@ pub mod limits;
 pub mod matching;
 pub mod mesh;
 pub mod pipeline;
+mod pool;
 pub mod regularizer;
 pub mod spectral;
 pub mod synth;

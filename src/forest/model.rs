@@ -143,7 +143,7 @@ impl RandomForest {
     /// [`Self::predict`] for a shape given by its mesh and its spectrum (same vertices): works
     /// for every forest, computing the local histograms when the forest splits on them.
     pub fn predict_mesh(&self, mesh: &Mesh, spectrum: &Spectrum) -> Result<Prediction, ForestError> {
-        self.predict_descriptor(&self.descriptor_mesh(Some(mesh), spectrum)?)
+        crate::pool::on_pool(|| self.predict_descriptor(&self.descriptor_mesh(Some(mesh), spectrum)?))
     }
 
     /// The per-vertex descriptor the trees split on, for this forest's energy grid and `K`:

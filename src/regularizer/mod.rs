@@ -916,13 +916,26 @@ pub fn regularize(
     label_to_vertex: Option<&[usize]>,
     params: &RegularizerParams,
 ) -> Result<DenseMap, Error> {
-    let sparse = sparse_matches(test, reference, prediction, label_to_vertex, params)?;
-    dense_map(test, reference, prediction, label_to_vertex, &sparse, params)
+    crate::pool::on_pool(|| {
+        let sparse = sparse_step(test, reference, prediction, label_to_vertex, params)?;
+        dense_step(test, reference, prediction, label_to_vertex, &sparse, params)
+    })
 }
 
 /// Steps 1–4: farthest-point samples, their candidate matches, heat-method distances and the
 /// game-theoretic selection of a consistent, orientation-preserving match set.
 pub fn sparse_matches(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    prediction: &Prediction,
+    label_to_vertex: Option<&[usize]>,
+    params: &RegularizerParams,
+) -> Result<SparseMatches, Error> {
+    crate::pool::on_pool(|| sparse_step(test, reference, prediction, label_to_vertex, params))
+}
+
+/// [`sparse_matches`] on the calling thread.
+fn sparse_step(
     test: &PreparedShape,
     reference: &PreparedShape,
     prediction: &Prediction,
@@ -1095,6 +1108,18 @@ fn zoomed_and_repaired(
 /// ([`SparseMatches::alternative`], a single view) both are completed and the map whose images
 /// the forest's posterior supports best on average ([`posterior_support`]) is kept.
 pub fn dense_map(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    prediction: &Prediction,
+    label_to_vertex: Option<&[usize]>,
+    sparse: &SparseMatches,
+    params: &RegularizerParams,
+) -> Result<DenseMap, Error> {
+    crate::pool::on_pool(|| dense_step(test, reference, prediction, label_to_vertex, sparse, params))
+}
+
+/// [`dense_map`] on the calling thread.
+fn dense_step(
     test: &PreparedShape,
     reference: &PreparedShape,
     prediction: &Prediction,
@@ -1312,6 +1337,19 @@ fn dense_of_equilibrium(
 /// [`RegularizerParams::zoomout`] is on; any other map of the shapes (e.g. one composed through
 /// a third shape) can be refined the same way.
 pub fn refine_map(
+    test: &PreparedShape,
+    reference: &PreparedShape,
+    prediction: &Prediction,
+    label_to_vertex: Option<&[usize]>,
+    map: &[usize],
+    zoomout: &ZoomOutParams,
+    params: &RegularizerParams,
+) -> Result<Option<Vec<usize>>, Error> {
+    crate::pool::on_pool(|| refine_step(test, reference, prediction, label_to_vertex, map, zoomout, params))
+}
+
+/// [`refine_map`] on the calling thread.
+fn refine_step(
     test: &PreparedShape,
     reference: &PreparedShape,
     prediction: &Prediction,

@@ -234,7 +234,8 @@ impl DenseMap {
     ) -> Result<Self, Error> {
         let Some(z) = &params.zoomout else { return Ok(self) };
         if !refines_partially(test, reference, params) {
-            self.map = finish_refinement(test, reference, std::mem::take(&mut self.map), z)?;
+            let map = std::mem::take(&mut self.map);
+            self.map = crate::pool::on_pool(|| finish_refinement(test, reference, map, z))?;
         }
         Ok(self)
     }
