@@ -87,24 +87,7 @@ pub(super) fn grow_anchors(
             })
             .collect()
     });
-    // On a single view, each vertex's candidates by prior cost, once for every round and run.
-    let by_prior = prior.map(|costs| {
-        use rayon::prelude::*;
-        (0..test.mesh.n_vertices())
-            .into_par_iter()
-            .map(|m| {
-                let mut ranked = Vec::new();
-                for_each_candidate(posterior, Some(costs), &extra, m, &mut |r, prior_cost| {
-                    ranked.push(Ranked { prior_cost, position: ranked.len() as u32, r: r as u32 });
-                });
-                ranked.sort_unstable_by(|a, b| {
-                    a.prior_cost.total_cmp(&b.prior_cost).then(a.position.cmp(&b.position))
-                });
-                ranked
-            })
-            .collect()
-    });
-    let setup = GrowthSetup { samples, a_fields, orientation, boundary, extra, prior, turning, by_prior };
+    let setup = GrowthSetup { samples, a_fields, orientation, boundary, extra, prior, turning };
     // Reference columns are shared by both runs: the second run's rounds mostly revisit the
     // targets of the first, and each costs a heat-method solve.
     let mut ref_cols = std::collections::HashMap::new();
@@ -147,18 +130,6 @@ struct GrowthSetup<'a> {
     /// Per test vertex, each candidate's orientation term `(1 − agreement) / 2` in the order of
     /// [`for_each_candidate`]; `None` when no run weighs it.
     turning: Option<Vec<Vec<f32>>>,
-    /// With `prior`: per test vertex, its candidates in order of prior cost (then of
-    /// [`for_each_candidate`]), for the placements that need only the cheapest.
-    by_prior: Option<Vec<Vec<Ranked>>>,
-}
-
-/// A candidate of a test vertex with its prior cost and its position in [`for_each_candidate`]'s
-/// order.
-#[derive(Clone, Copy)]
-struct Ranked {
-    prior_cost: f32,
-    position: u32,
-    r: u32,
 }
 
 /// Each candidate reference vertex of test vertex `m` with its prior cost, in the order a
@@ -271,15 +242,13 @@ fn grow_rounds(
 ) -> Result<Vec<(Vec<usize>, usize)>, Error> {
     use rayon::prelude::*;
     let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
-    let GrowthSetup { samples, a_fields, boundary, extra, prior, turning, by_prior, .. } = setup;
+    let GrowthSetup { samples, a_fields, boundary, extra, prior, turning, .. } = setup;
     let trust = |d: f64, a: usize, b: usize| boundary.as_ref().map_or(1.0, |db| pair_trust(d, db[a], db[b]));
     let s = samples.len();
     let ts = 1.0 / test.sqrt_area();
     let a_col = |j: usize| &a_fields[j][..];
     let n_keep = ((s as f64 * p.keep).ceil() as usize).clamp(3, s);
     let runs = first_orientations.len();
-    // The least orientation term (terms are (1 − cos)/2: 0 unless rounding takes a cosine past 1).
-    let terms_floor = turning.as_ref().map_or(0.0, |t| t.iter().flatten().fold(0f32, |f, &x| f.min(x)));
     assert!((1..=MAX_RUNS).contains(&runs), "one or two growth runs, not {runs}");
     if p.rounds == 0 {
         return Ok(vec![(start, 0); runs]);
@@ -371,19 +340,6 @@ fn grow_rounds(
             .map(|m| {
                 let (am, wm) = (&a[m * k..(m + 1) * k], &w[m * k..(m + 1) * k]);
                 let norm = 1.0 / wm.iter().sum::<f32>().max(f32::MIN_POSITIVE);
-                if let (false, Some(ranked)) = (last, by_prior) {
-                    let terms = turning.as_ref().filter(|_| turns).map(|t| &t[m][..]);
-                    let best = cheapest_by_prior(
-                        &ranked[m],
-                        &gammas,
-                        terms,
-                        terms_floor,
-                        map[m],
-                        |r| prefetch(&b[r * k..(r + 1) * k]),
-                        |r| weighted_l1(am, wm, &b[r * k..(r + 1) * k]) * norm,
-                    );
-                    return [(best[0], Vec::new()), (best[1], Vec::new())];
-                }
                 let mut best = [(f32::INFINITY, map[m]); MAX_RUNS];
                 let mut tables: [Vec<(u32, f32)>; MAX_RUNS] = Default::default();
                 let mut terms = turning.as_ref().filter(|_| turns).map(|t| t[m].iter());
@@ -440,66 +396,6 @@ fn grow_rounds(
         out.push((map, n_keep));
     }
     Ok(out)
-}
-
-/// A vertex's cheapest candidate at each orientation weight in `gammas` (`fallback` where none
-/// has a finite cost), for a placement that needs no other candidate's cost (every round but
-/// the last, whose costs the smoothing reads). The candidates are tried in order of prior cost
-/// (`ranked`, see [`GrowthSetup::by_prior`]); `distance(r)` is candidate `r`'s mean weighted
-/// disagreement, never negative, and `terms` the candidates' orientation terms by position. A
-/// candidate's cost is at least its prior cost plus its orientation term, added in the same
-/// order (rounding is monotonic), so a candidate whose bound exceeds the best cost at every
-/// weight is not costed, and once the bound with the least orientation term of any candidate
-/// (`terms_floor`, at most 0) does, neither is any after it. Ties go to the earliest in
-/// [`for_each_candidate`]'s order: the choice of costing every candidate in that order. On a
-/// SCAPE view about 30 % of those placements' candidates need no cost. `fetch(r)` is called
-/// ahead of `distance(r)`.
-fn cheapest_by_prior(
-    ranked: &[Ranked],
-    gammas: &[f32],
-    terms: Option<&[f32]>,
-    terms_floor: f32,
-    fallback: usize,
-    fetch: impl Fn(usize),
-    distance: impl Fn(usize) -> f32,
-) -> [usize; MAX_RUNS] {
-    let mut best = [(f32::INFINITY, u32::MAX, fallback); MAX_RUNS];
-    let best = &mut best[..gammas.len()];
-    let with_term = |gamma: f32, cost: f32, disagreement: f32| {
-        if gamma > 0.0 {
-            cost + gamma * disagreement
-        } else {
-            cost
-        }
-    };
-    if let Some(first) = ranked.first() {
-        fetch(first.r as usize);
-    }
-    for (i, c) in ranked.iter().enumerate() {
-        if best.iter().zip(gammas).all(|(b, &gamma)| with_term(gamma, c.prior_cost, terms_floor) > b.0) {
-            break;
-        }
-        let disagreement = terms.map_or(0.0, |t| t[c.position as usize]);
-        let with_term = |gamma: f32, cost: f32| with_term(gamma, cost, disagreement);
-        if best.iter().zip(gammas).all(|(b, &gamma)| with_term(gamma, c.prior_cost) > b.0) {
-            continue;
-        }
-        if let Some(next) = ranked.get(i + 1) {
-            fetch(next.r as usize);
-        }
-        let distance = distance(c.r as usize) + c.prior_cost;
-        for (b, &gamma) in best.iter_mut().zip(gammas) {
-            let cost = with_term(gamma, distance);
-            if cost < b.0 || (cost == b.0 && cost < f32::INFINITY && c.position < b.1) {
-                *b = (cost, c.position, c.r as usize);
-            }
-        }
-    }
-    let mut out = [fallback; MAX_RUNS];
-    for (o, b) in out.iter_mut().zip(best.iter()) {
-        *o = b.2;
-    }
-    out
 }
 
 /// Asks the CPU to bring `values` into its cache ahead of their use (a hint: nothing else
@@ -581,10 +477,7 @@ mod tests {
     use faer::Mat;
     use rand::{Rng, SeedableRng};
 
-    use super::{
-        anchor_consistent_map, cheapest_by_prior, prior_costs, weighted_l1, weighted_l1_impl,
-        LabelledPosterior, Ranked,
-    };
+    use super::{anchor_consistent_map, prior_costs, weighted_l1, weighted_l1_impl, LabelledPosterior};
     use crate::forest::Prediction;
 
     #[test]
@@ -644,72 +537,6 @@ mod tests {
         let all = prior_costs(&p, 0.02, 0);
         assert!(all.iter().flatten().all(|c| c.is_finite()));
         assert_eq!(all[0][1..3], capped[0][1..3]);
-    }
-
-    #[test]
-    fn trying_candidates_by_prior_cost_chooses_as_trying_them_all_in_order() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let (mut calls, mut tried) = (0, 0);
-        for case in 0..400 {
-            let n = rng.random_range(0..40);
-            // Prior costs and distances on coarse grids (ties), some distances infinite or NaN,
-            // orientation terms a rounding below 0 at times.
-            let priors: Vec<f32> = (0..n).map(|_| rng.random_range(0..6) as f32 * 0.02).collect();
-            let distances: Vec<f32> = (0..n)
-                .map(|_| match rng.random_range(0..20) {
-                    0 => f32::INFINITY,
-                    1 => f32::NAN,
-                    d => d as f32 * 0.004,
-                })
-                .collect();
-            let terms: Vec<f32> = (0..n)
-                .map(|_| if rng.random_range(0..10) == 0 { -1e-8 } else { rng.random_range(0.0..1.0) })
-                .collect();
-            let floor = terms.iter().fold(0f32, |f, &x| f.min(x));
-            let targets: Vec<usize> = (0..n).map(|_| rng.random_range(0..15)).collect();
-            let gammas: &[f32] = if case % 2 == 0 { &[0.01, 1.0] } else { &[0.0] };
-            let with_terms = case % 3 != 0;
-            // Every candidate in order, as a placement does when it needs every cost.
-            let mut plain = [(f32::INFINITY, 99); 2];
-            for i in 0..n {
-                let distance = distances[i] + priors[i];
-                for (g, &gamma) in gammas.iter().enumerate() {
-                    let mut cost = distance;
-                    if gamma > 0.0 && with_terms {
-                        cost += gamma * terms[i];
-                    }
-                    if cost < plain[g].0 {
-                        plain[g] = (cost, targets[i]);
-                    }
-                }
-            }
-            let mut ranked: Vec<Ranked> =
-                (0..n).map(|i| Ranked { prior_cost: priors[i], position: i as u32, r: i as u32 }).collect();
-            ranked.sort_unstable_by(|a, b| {
-                a.prior_cost.total_cmp(&b.prior_cost).then(a.position.cmp(&b.position))
-            });
-            let costed = std::cell::Cell::new(0);
-            let got = cheapest_by_prior(
-                &ranked,
-                gammas,
-                with_terms.then_some(&terms[..]),
-                if with_terms { floor } else { 0.0 },
-                99,
-                |_| {},
-                |i| {
-                    costed.set(costed.get() + 1);
-                    distances[i]
-                },
-            );
-            // `r` stands for the candidate's index here: its reference vertex is `targets[r]`.
-            let vertex = |r: usize| if r == 99 { 99 } else { targets[r] };
-            for g in 0..gammas.len() {
-                assert_eq!(vertex(got[g]), plain[g].1, "case {case}, weight {}", gammas[g]);
-            }
-            calls += costed.get();
-            tried += n;
-        }
-        assert!(calls < tried * 3 / 4, "the bound skipped too little: {calls} of {tried} costed");
     }
 
     #[test]
