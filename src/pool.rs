@@ -12,3 +12,20 @@
 pub(crate) fn on_pool<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| work())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::on_pool;
+
+    #[test]
+    fn work_runs_on_a_pool_thread_and_in_place_when_already_on_one() {
+        // A test's own thread is not one of the pool's.
+        assert_eq!(rayon::current_thread_index(), None);
+        let (outer, inner) =
+            on_pool(|| (rayon::current_thread_index(), on_pool(rayon::current_thread_index)));
+        assert!(outer.is_some(), "the work was not handed to the pool");
+        assert_eq!(inner, outer, "a call from a pool thread moved to another");
+        // Results and errors come back to the caller.
+        assert_eq!(on_pool(|| Err::<(), _>("failed")), Err("failed"));
+    }
+}
