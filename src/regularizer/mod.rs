@@ -917,8 +917,8 @@ pub fn regularize(
     params: &RegularizerParams,
 ) -> Result<DenseMap, Error> {
     crate::pool::on_pool(|| {
-        let sparse = sparse_step(test, reference, prediction, label_to_vertex, params)?;
-        dense_step(test, reference, prediction, label_to_vertex, &sparse, params)
+        let sparse = sparse_matches(test, reference, prediction, label_to_vertex, params)?;
+        dense_map(test, reference, prediction, label_to_vertex, &sparse, params)
     })
 }
 
@@ -931,156 +931,156 @@ pub fn sparse_matches(
     label_to_vertex: Option<&[usize]>,
     params: &RegularizerParams,
 ) -> Result<SparseMatches, Error> {
-    crate::pool::on_pool(|| sparse_step(test, reference, prediction, label_to_vertex, params))
-}
-
-/// [`sparse_matches`] on the calling thread.
-fn sparse_step(
-    test: &PreparedShape,
-    reference: &PreparedShape,
-    prediction: &Prediction,
-    label_to_vertex: Option<&[usize]>,
-    params: &RegularizerParams,
-) -> Result<SparseMatches, Error> {
-    check_inputs(test, reference, prediction, label_to_vertex, params)?;
-    let mirrored = mirror_table(test, reference, &LabelledPosterior { prediction, label_to_vertex }, params);
-    let prediction_mirrored = mirrored.is_some();
-    let posterior =
-        LabelledPosterior { prediction, label_to_vertex: mirrored.as_deref().or(label_to_vertex) };
-    let mut timings = RegularizerTimings::default();
-    // 1–2. Samples and candidates.
-    let t0 = Instant::now();
-    let n_samples = params.n_samples.min(test.mesh.n_vertices());
-    let samples = farthest_point_sampling_euclidean(&test.mesh, n_samples, None)?;
-    // A single view: more candidates per sample, and its orientation read extrinsically (below).
-    let small_part = partial::is_small_part(test, reference);
-    let top_k = if small_part { params.part_top_k } else { params.top_k };
-    // A single view also plays the game among the `top_k` most probable candidates (the
-    // complete scan's): the dense step keeps whichever map the posterior supports best.
-    let alternative_k =
-        (small_part && params.part_alternative && params.top_k < top_k).then_some(params.top_k);
-    let mut ref_points: Vec<usize> = Vec::new();
-    let mut ref_index = std::collections::HashMap::new();
-    let mut candidates = Vec::new();
-    let mut fewer = Vec::new();
-    for (i, &m) in samples.iter().enumerate() {
-        for (rank, (label, p)) in prediction.top_k(m, top_k).into_iter().enumerate() {
-            let r = posterior.vertex(label);
-            let idx = *ref_index.entry(r).or_insert_with(|| {
-                ref_points.push(r);
-                ref_points.len() - 1
-            });
-            let c = Candidate { test: i, reference: idx, prior: p as f64 };
-            candidates.push(c);
-            if alternative_k.is_some_and(|k| rank < k) {
-                fewer.push(c);
+    crate::pool::on_pool(|| {
+        check_inputs(test, reference, prediction, label_to_vertex, params)?;
+        let mirrored =
+            mirror_table(test, reference, &LabelledPosterior { prediction, label_to_vertex }, params);
+        let prediction_mirrored = mirrored.is_some();
+        let posterior =
+            LabelledPosterior { prediction, label_to_vertex: mirrored.as_deref().or(label_to_vertex) };
+        let mut timings = RegularizerTimings::default();
+        // 1–2. Samples and candidates.
+        let t0 = Instant::now();
+        let n_samples = params.n_samples.min(test.mesh.n_vertices());
+        let samples = farthest_point_sampling_euclidean(&test.mesh, n_samples, None)?;
+        // A single view: more candidates per sample, and its orientation read extrinsically (below).
+        let small_part = partial::is_small_part(test, reference);
+        let top_k = if small_part { params.part_top_k } else { params.top_k };
+        // A single view also plays the game among the `top_k` most probable candidates (the
+        // complete scan's): the dense step keeps whichever map the posterior supports best.
+        let alternative_k =
+            (small_part && params.part_alternative && params.top_k < top_k).then_some(params.top_k);
+        let mut ref_points: Vec<usize> = Vec::new();
+        let mut ref_index = std::collections::HashMap::new();
+        let mut candidates = Vec::new();
+        let mut fewer = Vec::new();
+        for (i, &m) in samples.iter().enumerate() {
+            for (rank, (label, p)) in prediction.top_k(m, top_k).into_iter().enumerate() {
+                let r = posterior.vertex(label);
+                let idx = *ref_index.entry(r).or_insert_with(|| {
+                    ref_points.push(r);
+                    ref_points.len() - 1
+                });
+                let c = Candidate { test: i, reference: idx, prior: p as f64 };
+                candidates.push(c);
+                if alternative_k.is_some_and(|k| rank < k) {
+                    fewer.push(c);
+                }
             }
         }
-    }
-    timings.sampling_s = t0.elapsed().as_secs_f64();
+        timings.sampling_s = t0.elapsed().as_secs_f64();
 
-    // 3. Distances.
-    let t0 = Instant::now();
-    let test_fields = test.distance_columns(&samples)?;
-    let ref_fields = reference.distance_columns(&ref_points)?;
-    let d_test = pairwise(&test_fields, &samples, test.sqrt_area());
-    let d_ref = pairwise(&ref_fields, &ref_points, reference.sqrt_area());
-    timings.distances_s = t0.elapsed().as_secs_f64();
+        // 3. Distances.
+        let t0 = Instant::now();
+        let test_fields = test.distance_columns(&samples)?;
+        let ref_fields = reference.distance_columns(&ref_points)?;
+        let d_test = pairwise(&test_fields, &samples, test.sqrt_area());
+        let d_ref = pairwise(&ref_fields, &ref_points, reference.sqrt_area());
+        timings.distances_s = t0.elapsed().as_secs_f64();
 
-    // 4. Game.
-    let t0 = Instant::now();
-    let orientation = Orientation::of(test, reference);
-    let agreement = |m: usize, r: usize| orientation.agreement(m, r);
-    let group_score = |g: &crate::matching::GameMatching| {
-        let (mut num, mut den) = (0.0, 0.0);
-        for m in &g.matches {
-            num += m.weight * agreement(samples[m.test], ref_points[m.reference]);
-            den += m.weight;
-        }
-        if den > 0.0 {
-            num / den
-        } else {
-            0.0
-        }
-    };
-    let play = |candidates: &[Candidate]| {
-        game_theoretic_matching(candidates, &d_test, samples.len(), &d_ref, ref_points.len(), &params.matcher)
-    };
-    let symmetry = reference.symmetry.as_deref().filter(|_| small_part);
-    let equilibrium = |candidates: &[Candidate]| -> Result<SparseMatches, Error> {
-        let mut game = play(candidates)?;
-        let mut orientation_score = group_score(&game);
-        let mut mirror_rejected = false;
-        if orientation_score < 0.0 {
-            // The equilibrium is a mirror image: play again among orientation-preserving
-            // candidates.
-            let kept: Vec<Candidate> = candidates
-                .iter()
-                .copied()
-                .filter(|c| agreement(samples[c.test], ref_points[c.reference]) > 0.0)
-                .collect();
-            let second = play(&kept)?;
-            let second_score = group_score(&second);
-            if second_score > orientation_score && !second.matches.is_empty() {
-                game = second;
-                orientation_score = second_score;
-                mirror_rejected = true;
+        // 4. Game.
+        let t0 = Instant::now();
+        let orientation = Orientation::of(test, reference);
+        let agreement = |m: usize, r: usize| orientation.agreement(m, r);
+        let group_score = |g: &crate::matching::GameMatching| {
+            let (mut num, mut den) = (0.0, 0.0);
+            for m in &g.matches {
+                num += m.weight * agreement(samples[m.test], ref_points[m.reference]);
+                den += m.weight;
             }
-        }
-        // A small part (a single view): the spectral orientation descriptors do not survive
-        // it, so the equilibrium's orientation is also read extrinsically, and a mirror image is
-        // read through the reference's symmetry (an isometry: the game's consistency is kept).
-        let mut through: Option<&[usize]> = None;
-        if let (Some(symmetry), Some(threshold)) = (symmetry, params.unflip) {
-            let pairs: Vec<(usize, usize)> =
-                game.matches.iter().map(|m| (samples[m.test], ref_points[m.reference])).collect();
-            if flip::matches_orientation(&test.mesh, &reference.mesh, &pairs) < -threshold {
-                through = Some(symmetry);
-                mirror_rejected = true;
+            if den > 0.0 {
+                num / den
+            } else {
+                0.0
             }
-        }
-        let image = |r: usize| through.map_or(r, |s| s[r]);
-        let matched: Vec<usize> = game.matches.iter().map(|m| image(ref_points[m.reference])).collect();
-        let matches = game
-            .matches
-            .iter()
-            .zip(&matched)
-            .map(|(m, &r)| VertexMatch { test: samples[m.test], reference: r, weight: m.weight })
-            .collect();
-        let (ts, rs) = (test.sqrt_area(), reference.sqrt_area());
-        let kept_test = Mat::from_fn(test.mesh.n_vertices(), game.matches.len(), |v, j| {
-            f64::from(test_fields[game.matches[j].test][v]) / ts
-        });
-        // Through the symmetry the matched images' own columns (the game's are their mirrors').
-        let mirrored_columns = match through {
-            Some(_) => Some(reference.distance_columns(&matched)?),
-            None => None,
         };
-        let kept_ref = Mat::from_fn(reference.mesh.n_vertices(), game.matches.len(), |v, j| {
-            let column = mirrored_columns.as_ref().map_or(&ref_fields[game.matches[j].reference], |c| &c[j]);
-            f64::from(column[v]) / rs
-        });
-        Ok(SparseMatches {
-            samples: samples.clone(),
-            ref_points: ref_points.iter().map(|&r| image(r)).collect(),
-            test_fields: kept_test,
-            ref_fields: kept_ref,
-            game,
-            matches,
-            orientation_score,
-            mirror_rejected,
-            prediction_mirrored,
-            timings: RegularizerTimings::default(),
-            alternative: None,
-        })
-    };
-    let mut sparse = equilibrium(&candidates)?;
-    if alternative_k.is_some() {
-        sparse.alternative = Some(Box::new(equilibrium(&fewer)?));
-    }
-    timings.matching_s = t0.elapsed().as_secs_f64();
-    sparse.timings = timings;
-    Ok(sparse)
+        let play = |candidates: &[Candidate]| {
+            game_theoretic_matching(
+                candidates,
+                &d_test,
+                samples.len(),
+                &d_ref,
+                ref_points.len(),
+                &params.matcher,
+            )
+        };
+        let symmetry = reference.symmetry.as_deref().filter(|_| small_part);
+        let equilibrium = |candidates: &[Candidate]| -> Result<SparseMatches, Error> {
+            let mut game = play(candidates)?;
+            let mut orientation_score = group_score(&game);
+            let mut mirror_rejected = false;
+            if orientation_score < 0.0 {
+                // The equilibrium is a mirror image: play again among orientation-preserving
+                // candidates.
+                let kept: Vec<Candidate> = candidates
+                    .iter()
+                    .copied()
+                    .filter(|c| agreement(samples[c.test], ref_points[c.reference]) > 0.0)
+                    .collect();
+                let second = play(&kept)?;
+                let second_score = group_score(&second);
+                if second_score > orientation_score && !second.matches.is_empty() {
+                    game = second;
+                    orientation_score = second_score;
+                    mirror_rejected = true;
+                }
+            }
+            // A small part (a single view): the spectral orientation descriptors do not survive
+            // it, so the equilibrium's orientation is also read extrinsically, and a mirror image is
+            // read through the reference's symmetry (an isometry: the game's consistency is kept).
+            let mut through: Option<&[usize]> = None;
+            if let (Some(symmetry), Some(threshold)) = (symmetry, params.unflip) {
+                let pairs: Vec<(usize, usize)> =
+                    game.matches.iter().map(|m| (samples[m.test], ref_points[m.reference])).collect();
+                if flip::matches_orientation(&test.mesh, &reference.mesh, &pairs) < -threshold {
+                    through = Some(symmetry);
+                    mirror_rejected = true;
+                }
+            }
+            let image = |r: usize| through.map_or(r, |s| s[r]);
+            let matched: Vec<usize> = game.matches.iter().map(|m| image(ref_points[m.reference])).collect();
+            let matches = game
+                .matches
+                .iter()
+                .zip(&matched)
+                .map(|(m, &r)| VertexMatch { test: samples[m.test], reference: r, weight: m.weight })
+                .collect();
+            let (ts, rs) = (test.sqrt_area(), reference.sqrt_area());
+            let kept_test = Mat::from_fn(test.mesh.n_vertices(), game.matches.len(), |v, j| {
+                f64::from(test_fields[game.matches[j].test][v]) / ts
+            });
+            // Through the symmetry the matched images' own columns (the game's are their mirrors').
+            let mirrored_columns = match through {
+                Some(_) => Some(reference.distance_columns(&matched)?),
+                None => None,
+            };
+            let kept_ref = Mat::from_fn(reference.mesh.n_vertices(), game.matches.len(), |v, j| {
+                let column =
+                    mirrored_columns.as_ref().map_or(&ref_fields[game.matches[j].reference], |c| &c[j]);
+                f64::from(column[v]) / rs
+            });
+            Ok(SparseMatches {
+                samples: samples.clone(),
+                ref_points: ref_points.iter().map(|&r| image(r)).collect(),
+                test_fields: kept_test,
+                ref_fields: kept_ref,
+                game,
+                matches,
+                orientation_score,
+                mirror_rejected,
+                prediction_mirrored,
+                timings: RegularizerTimings::default(),
+                alternative: None,
+            })
+        };
+        let mut sparse = equilibrium(&candidates)?;
+        if alternative_k.is_some() {
+            sparse.alternative = Some(Box::new(equilibrium(&fewer)?));
+        }
+        timings.matching_s = t0.elapsed().as_secs_f64();
+        sparse.timings = timings;
+        Ok(sparse)
+    })
 }
 
 /// `zoom` (a ZoomOut refinement) of `map`; where the reference's symmetry is known and the
@@ -1115,65 +1115,58 @@ pub fn dense_map(
     sparse: &SparseMatches,
     params: &RegularizerParams,
 ) -> Result<DenseMap, Error> {
-    crate::pool::on_pool(|| dense_step(test, reference, prediction, label_to_vertex, sparse, params))
-}
-
-/// [`dense_map`] on the calling thread.
-fn dense_step(
-    test: &PreparedShape,
-    reference: &PreparedShape,
-    prediction: &Prediction,
-    label_to_vertex: Option<&[usize]>,
-    sparse: &SparseMatches,
-    params: &RegularizerParams,
-) -> Result<DenseMap, Error> {
-    // The prior's costs of a single view's placements (and the entries not tried), shared by
-    // both games' growths.
-    let prior = params
-        .growth
-        .as_ref()
-        .filter(|g| (g.part_prior > 0.0 || g.part_candidates > 0) && partial::is_small_part(test, reference))
-        .map(|g| growth::prior_costs(prediction, g.part_prior, g.part_candidates));
-    let prior = prior.as_deref();
-    let first =
-        dense_of_equilibrium(test, reference, prediction, label_to_vertex, sparse, params, prior, None)?;
-    let Some(alternative) = sparse.alternative.as_deref() else { return Ok(first) };
-    // The predicted functional map depends on the game only through whether it read the
-    // prediction as mirrored: the second game's completion takes the first's when they agree.
-    let predicted =
-        (alternative.prediction_mirrored == sparse.prediction_mirrored).then_some(&first.fmap_predicted);
-    let second = dense_of_equilibrium(
-        test,
-        reference,
-        prediction,
-        label_to_vertex,
-        alternative,
-        params,
-        prior,
-        predicted,
-    )?;
-    let table = posterior_table(prediction, label_to_vertex, sparse, reference)?;
-    let posterior = LabelledPosterior { prediction, label_to_vertex: table.as_deref().or(label_to_vertex) };
-    // The whole map is chosen: region by region (as `select_by_posterior` does for the
-    // refinements) measured 68.5 against 68.7 % on SCAPE's single views, with a mean error of
-    // 0.077 against 0.065 (seams between two unrelated maps).
-    let sigma = MapSelection::default().sigma;
-    let mean = |map: &[usize]| {
-        let s = posterior_support(&test.mesh, &reference.mesh, &posterior, map, sigma);
-        s.iter().sum::<f64>() / s.len().max(1) as f64
-    };
-    let alternative_kept = mean(&second.map) > mean(&first.map);
-    let (a, b) = (first.timings, second.timings);
-    let mut kept = if alternative_kept { second } else { first };
-    kept.alternative_kept = alternative_kept;
-    kept.timings = RegularizerTimings {
-        fmap_s: a.fmap_s + b.fmap_s,
-        point_map_s: a.point_map_s + b.point_map_s,
-        growth_s: a.growth_s + b.growth_s,
-        zoomout_s: a.zoomout_s + b.zoomout_s,
-        ..sparse.timings
-    };
-    Ok(kept)
+    crate::pool::on_pool(|| {
+        // The prior's costs of a single view's placements (and the entries not tried), shared by
+        // both games' growths.
+        let prior = params
+            .growth
+            .as_ref()
+            .filter(|g| {
+                (g.part_prior > 0.0 || g.part_candidates > 0) && partial::is_small_part(test, reference)
+            })
+            .map(|g| growth::prior_costs(prediction, g.part_prior, g.part_candidates));
+        let prior = prior.as_deref();
+        let first =
+            dense_of_equilibrium(test, reference, prediction, label_to_vertex, sparse, params, prior, None)?;
+        let Some(alternative) = sparse.alternative.as_deref() else { return Ok(first) };
+        // The predicted functional map depends on the game only through whether it read the
+        // prediction as mirrored: the second game's completion takes the first's when they agree.
+        let predicted =
+            (alternative.prediction_mirrored == sparse.prediction_mirrored).then_some(&first.fmap_predicted);
+        let second = dense_of_equilibrium(
+            test,
+            reference,
+            prediction,
+            label_to_vertex,
+            alternative,
+            params,
+            prior,
+            predicted,
+        )?;
+        let table = posterior_table(prediction, label_to_vertex, sparse, reference)?;
+        let posterior =
+            LabelledPosterior { prediction, label_to_vertex: table.as_deref().or(label_to_vertex) };
+        // The whole map is chosen: region by region (as `select_by_posterior` does for the
+        // refinements) measured 68.5 against 68.7 % on SCAPE's single views, with a mean error of
+        // 0.077 against 0.065 (seams between two unrelated maps).
+        let sigma = MapSelection::default().sigma;
+        let mean = |map: &[usize]| {
+            let s = posterior_support(&test.mesh, &reference.mesh, &posterior, map, sigma);
+            s.iter().sum::<f64>() / s.len().max(1) as f64
+        };
+        let alternative_kept = mean(&second.map) > mean(&first.map);
+        let (a, b) = (first.timings, second.timings);
+        let mut kept = if alternative_kept { second } else { first };
+        kept.alternative_kept = alternative_kept;
+        kept.timings = RegularizerTimings {
+            fmap_s: a.fmap_s + b.fmap_s,
+            point_map_s: a.point_map_s + b.point_map_s,
+            growth_s: a.growth_s + b.growth_s,
+            zoomout_s: a.zoomout_s + b.zoomout_s,
+            ..sparse.timings
+        };
+        Ok(kept)
+    })
 }
 
 /// The label → reference vertex table the dense step reads the prediction through: the
@@ -1345,22 +1338,11 @@ pub fn refine_map(
     zoomout: &ZoomOutParams,
     params: &RegularizerParams,
 ) -> Result<Option<Vec<usize>>, Error> {
-    crate::pool::on_pool(|| refine_step(test, reference, prediction, label_to_vertex, map, zoomout, params))
-}
-
-/// [`refine_map`] on the calling thread.
-fn refine_step(
-    test: &PreparedShape,
-    reference: &PreparedShape,
-    prediction: &Prediction,
-    label_to_vertex: Option<&[usize]>,
-    map: &[usize],
-    zoomout: &ZoomOutParams,
-    params: &RegularizerParams,
-) -> Result<Option<Vec<usize>>, Error> {
-    check_inputs(test, reference, prediction, label_to_vertex, params)?;
-    check_map_onto(test, reference, map)?;
-    refine_with(test, reference, &LabelledPosterior { prediction, label_to_vertex }, map, zoomout, params)
+    crate::pool::on_pool(|| {
+        check_inputs(test, reference, prediction, label_to_vertex, params)?;
+        check_map_onto(test, reference, map)?;
+        refine_with(test, reference, &LabelledPosterior { prediction, label_to_vertex }, map, zoomout, params)
+    })
 }
 
 /// Checks that `map` has one entry per test vertex, each a reference vertex.
