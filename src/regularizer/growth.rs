@@ -43,8 +43,43 @@ pub(super) fn anchor_consistent_map(
         .collect()
 }
 
+/// What the growths of one scan's maps onto one reference share, made by the first growth that
+/// needs each part: on a single view [`super::dense_map`] completes two games' maps, and their
+/// growths have the same samples, test-side columns, boundary distances, extra candidates,
+/// per-sample weights and normalised reference columns, and the same orientation terms when
+/// both read the posterior through the same label table. (Before, the second growth remade
+/// them: about 3 % of a single view's regularisation.)
+#[derive(Default)]
+pub(super) struct GrowthMemo {
+    inner: std::sync::Mutex<MemoInner>,
+}
+
+#[derive(Default)]
+struct MemoInner {
+    base: Option<Arc<GrowthBase>>,
+    /// The orientation terms and the label table of the posterior they were made for.
+    turning: Option<(Option<Vec<usize>>, Turning)>,
+    /// Normalised reference distance columns by target vertex ([`grow_rounds`]).
+    ref_cols: std::collections::HashMap<usize, Vec<f32>>,
+    /// Each sample's anchor weights, once made ([`grow_rounds`]).
+    sample_weights: Vec<Vec<f32>>,
+}
+
+/// Per test vertex, each candidate's orientation term `(1 − agreement) / 2` in the order of
+/// [`for_each_candidate`].
+type Turning = Arc<Vec<Vec<f32>>>;
+
+impl GrowthMemo {
+    fn lock(&self) -> std::sync::MutexGuard<'_, MemoInner> {
+        // Every update replaces a whole field: a poisoned lock still holds consistent parts.
+        self.inner.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
 /// Anchor growth (see [`AnchorGrowthParams`]): returns the final map and the number of anchors
-/// of the last round.
+/// of the last round. `memo` holds what an earlier growth of the same scan onto the same
+/// reference with the same settings made (see [`GrowthMemo`]); a fresh one for a growth alone.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn grow_anchors(
     test: &PreparedShape,
     reference: &PreparedShape,
@@ -53,57 +88,71 @@ pub(super) fn grow_anchors(
     p: &AnchorGrowthParams,
     partial: &PartialScanParams,
     prior: Option<&[Vec<f32>]>,
+    memo: &GrowthMemo,
 ) -> Result<Grown, Error> {
-    let orientation = Orientation::of(test, reference);
-    // Shared by both runs: the samples, their test-side fields, and the reference fields of
-    // the first round's targets (the same in both runs).
-    let samples = farthest_point_sampling_euclidean(&test.mesh, p.samples.min(test.mesh.n_vertices()), None)?;
-    if samples.len() < 3 {
-        let score = orientation.mean_agreement(&start);
+    let known = memo.lock().base.clone();
+    let base = match known {
+        Some(base) => base,
+        None => {
+            let base = Arc::new(GrowthBase::new(test, reference, p, partial)?);
+            memo.lock().base = Some(base.clone());
+            base
+        }
+    };
+    if base.samples.len() < 3 {
+        let score = base.orientation.mean_agreement(&start);
         return Ok(Grown { map: start, anchors: 0, orientation: score, reoriented: false });
     }
-    // The sparse step's samples are the first of these (the same farthest-point sequence):
-    // their columns are kept by the test shape.
-    let a_fields = test.distance_columns(&samples)?;
-    let boundary =
-        if partial.boundary_trust { boundary_distances(&test.mesh, test.sqrt_area()) } else { None };
-    let extra = if partial.free_candidates > 0 {
-        let n = partial.free_candidates.min(reference.mesh.n_vertices());
-        farthest_point_sampling_euclidean(&reference.mesh, n, None)?
-    } else {
-        Vec::new()
-    };
     // Each candidate's orientation term is the same in every round and run: made once.
     let turning = (p.orientation > 0.0 || p.reorient > 0.0).then(|| {
-        use rayon::prelude::*;
-        (0..test.mesh.n_vertices())
-            .into_par_iter()
-            .map(|m| {
-                let mut terms = Vec::new();
-                for_each_candidate(posterior, prior, &extra, m, &mut |r, _| {
-                    terms.push((0.5 * (1.0 - orientation.agreement(m, r))) as f32);
-                });
+        let known = memo.lock().turning.clone();
+        match known {
+            Some((table, terms)) if table.as_deref() == posterior.label_to_vertex => terms,
+            _ => {
+                use rayon::prelude::*;
+                let terms: Turning = Arc::new(
+                    (0..test.mesh.n_vertices())
+                        .into_par_iter()
+                        .map(|m| {
+                            let mut terms = Vec::new();
+                            for_each_candidate(posterior, prior, &base.extra, m, &mut |r, _| {
+                                terms.push((0.5 * (1.0 - base.orientation.agreement(m, r))) as f32);
+                            });
+                            terms
+                        })
+                        .collect(),
+                );
+                memo.lock().turning = Some((posterior.label_to_vertex.map(<[usize]>::to_vec), terms.clone()));
                 terms
-            })
-            .collect()
+            }
+        }
     });
-    let setup = GrowthSetup { samples, a_fields, orientation, boundary, extra, prior, turning };
-    // Reference columns are shared by both runs: the second run's rounds mostly revisit the
-    // targets of the first, and each costs a heat-method solve.
-    let mut ref_cols = std::collections::HashMap::new();
+    let setup = GrowthSetup { base, prior, turning };
+    // Reference columns are shared by both runs (and kept for the next growth): the second
+    // run's rounds mostly revisit the targets of the first, and each costs a heat-method solve.
+    let (mut ref_cols, mut sample_weights) = {
+        let mut m = memo.lock();
+        (std::mem::take(&mut m.ref_cols), std::mem::take(&mut m.sample_weights))
+    };
     // The second hypothesis: a first round placed with a strong orientation term, which puts
     // every vertex on the side its orientation descriptor says (undoing a mirror image of the
     // game's anchors, whole or in part), then the ordinary rounds. The better oriented map wins.
     // Both runs' first rounds place from the same anchors (the start map's): one pass.
     let first = if p.reorient > 0.0 { vec![p.orientation, p.reorient] } else { vec![p.orientation] };
-    let mut runs =
-        grow_rounds(test, reference, posterior, start, p, &first, &setup, &mut ref_cols)?.into_iter();
+    let runs =
+        grow_rounds(test, reference, posterior, start, p, &first, &setup, &mut ref_cols, &mut sample_weights);
+    {
+        let mut m = memo.lock();
+        (m.ref_cols, m.sample_weights) = (ref_cols, sample_weights);
+    }
+    let mut runs = runs?.into_iter();
+    let orientation = &setup.base.orientation;
     let (map, anchors) = runs.next().expect("one run per first orientation");
-    let score = setup.orientation.mean_agreement(&map);
+    let score = orientation.mean_agreement(&map);
     let Some((second, second_anchors)) = runs.next() else {
         return Ok(Grown { map, anchors, orientation: score, reoriented: false });
     };
-    let second_score = setup.orientation.mean_agreement(&second);
+    let second_score = orientation.mean_agreement(&second);
     if second_score > score {
         Ok(Grown { map: second, anchors: second_anchors, orientation: second_score, reoriented: true })
     } else {
@@ -111,8 +160,9 @@ pub(super) fn grow_anchors(
     }
 }
 
-/// What both growth runs share.
-struct GrowthSetup<'a> {
+/// What growth reads of the scan and the reference whatever the posterior: the same for every
+/// growth of one scan onto one reference with the same settings.
+struct GrowthBase {
     /// Farthest-point samples of the test shape.
     samples: Vec<usize>,
     /// Distances from the samples on the test shape (one column per sample, not normalised).
@@ -124,12 +174,51 @@ struct GrowthSetup<'a> {
     boundary: Option<Vec<f64>>,
     /// Reference vertices tried for every test vertex besides its forest candidates.
     extra: Vec<usize>,
+}
+
+impl GrowthBase {
+    fn new(
+        test: &PreparedShape,
+        reference: &PreparedShape,
+        p: &AnchorGrowthParams,
+        partial: &PartialScanParams,
+    ) -> Result<Self, Error> {
+        let orientation = Orientation::of(test, reference);
+        let samples =
+            farthest_point_sampling_euclidean(&test.mesh, p.samples.min(test.mesh.n_vertices()), None)?;
+        if samples.len() < 3 {
+            return Ok(Self {
+                samples,
+                a_fields: Vec::new(),
+                orientation,
+                boundary: None,
+                extra: Vec::new(),
+            });
+        }
+        // The sparse step's samples are the first of these (the same farthest-point sequence):
+        // their columns are kept by the test shape.
+        let a_fields = test.distance_columns(&samples)?;
+        let boundary =
+            if partial.boundary_trust { boundary_distances(&test.mesh, test.sqrt_area()) } else { None };
+        let extra = if partial.free_candidates > 0 {
+            let n = partial.free_candidates.min(reference.mesh.n_vertices());
+            farthest_point_sampling_euclidean(&reference.mesh, n, None)?
+        } else {
+            Vec::new()
+        };
+        Ok(Self { samples, a_fields, orientation, boundary, extra })
+    }
+}
+
+/// What both growth runs share.
+struct GrowthSetup<'a> {
+    /// What every growth of the scan onto the reference shares.
+    base: Arc<GrowthBase>,
     /// On a single view, each posterior entry's cost in a placement ([`prior_costs`]; ∞: not
     /// tried); `None` elsewhere.
     prior: Option<&'a [Vec<f32>]>,
-    /// Per test vertex, each candidate's orientation term `(1 − agreement) / 2` in the order of
-    /// [`for_each_candidate`]; `None` when no run weighs it.
-    turning: Option<Vec<Vec<f32>>>,
+    /// The orientation terms ([`Turning`]); `None` when no run weighs them.
+    turning: Option<Turning>,
 }
 
 /// Each candidate reference vertex of test vertex `m` with its prior cost, in the order a
@@ -211,7 +300,6 @@ fn reference_columns(
         .collect())
 }
 
-/// What anchor growth returns.
 /// The result of anchor growth.
 pub(super) struct Grown {
     /// Test vertex → reference vertex.
@@ -239,10 +327,12 @@ fn grow_rounds(
     first_orientations: &[f64],
     setup: &GrowthSetup,
     ref_cols: &mut std::collections::HashMap<usize, Vec<f32>>,
+    sample_weights: &mut Vec<Vec<f32>>,
 ) -> Result<Vec<(Vec<usize>, usize)>, Error> {
     use rayon::prelude::*;
     let (n_t, n_r) = (test.mesh.n_vertices(), reference.mesh.n_vertices());
-    let GrowthSetup { samples, a_fields, boundary, extra, prior, turning, .. } = setup;
+    let GrowthSetup { base, prior, turning } = setup;
+    let GrowthBase { samples, a_fields, boundary, extra, .. } = &**base;
     let trust = |d: f64, a: usize, b: usize| boundary.as_ref().map_or(1.0, |db| pair_trust(d, db[a], db[b]));
     let s = samples.len();
     let ts = 1.0 / test.sqrt_area();
@@ -259,7 +349,7 @@ fn grow_rounds(
         (vec![0f32; n_t * n_keep], vec![0f32; n_t * n_keep], vec![0f32; n_r * n_keep]);
     // Each sample's anchor weight at every test vertex (locality × trust), once it was kept
     // (empty before).
-    let mut sample_weights: Vec<Vec<f32>> = vec![Vec::new(); s];
+    sample_weights.resize(s, Vec::new());
     // One round from `map`: a placement per orientation weight in `gammas`.
     let mut round = |map: &[usize], gammas: &[f64], last: bool| -> Result<Vec<Vec<usize>>, Error> {
         let targets: Vec<usize> = samples.iter().map(|&v| map[v]).collect();

@@ -46,7 +46,7 @@ pub use flip::{
     map_orientation, reversed_area, smoothed_orientation, symmetry_from_pairs, unflip, unflip_rounds,
     MapOrientation, Unflip, UNFLIP_THRESHOLD,
 };
-use growth::{anchor_consistent_map, grow_anchors};
+use growth::{anchor_consistent_map, grow_anchors, GrowthMemo};
 use orientation::Orientation;
 
 pub use pair::{
@@ -1126,8 +1126,18 @@ pub fn dense_map(
             })
             .map(|g| growth::prior_costs(prediction, g.part_prior, g.part_candidates));
         let prior = prior.as_deref();
-        let first =
-            dense_of_equilibrium(test, reference, prediction, label_to_vertex, sparse, params, prior, None)?;
+        let memo = GrowthMemo::default();
+        let first = dense_of_equilibrium(
+            test,
+            reference,
+            prediction,
+            label_to_vertex,
+            sparse,
+            params,
+            prior,
+            None,
+            &memo,
+        )?;
         let Some(alternative) = sparse.alternative.as_deref() else { return Ok(first) };
         // The predicted functional map depends on the game only through whether it read the
         // prediction as mirrored: the second game's completion takes the first's when they agree.
@@ -1142,6 +1152,7 @@ pub fn dense_map(
             params,
             prior,
             predicted,
+            &memo,
         )?;
         let table = posterior_table(prediction, label_to_vertex, sparse, reference)?;
         let posterior =
@@ -1189,7 +1200,8 @@ fn posterior_table(
 
 /// The dense map completed from one game's matches; `prior`: the single view's placement costs
 /// ([`growth::prior_costs`]), `None` on other scans; `predicted`: the predicted functional map
-/// when already made (from the same prediction, read as mirrored or not as `sparse` reads it).
+/// when already made (from the same prediction, read as mirrored or not as `sparse` reads it);
+/// `memo`: what the growths of this scan's maps onto `reference` share.
 #[allow(clippy::too_many_arguments)]
 fn dense_of_equilibrium(
     test: &PreparedShape,
@@ -1200,6 +1212,7 @@ fn dense_of_equilibrium(
     params: &RegularizerParams,
     prior: Option<&[Vec<f32>]>,
     predicted: Option<&Mat<f64>>,
+    memo: &GrowthMemo,
 ) -> Result<DenseMap, Error> {
     check_inputs(test, reference, prediction, label_to_vertex, params)?;
     let n_ref = reference.mesh.n_vertices();
@@ -1270,6 +1283,7 @@ fn dense_of_equilibrium(
                 g,
                 &params.partial_scan,
                 prior,
+                memo,
             )?;
             timings.growth_s = t0.elapsed().as_secs_f64();
             Some(grown)
