@@ -10,15 +10,59 @@
 //! source, up to round-off: solved in another block of sources it can differ in the last bits
 //! (faer's block solves), never more.
 //!
+//! Kept columns are packed to 16 bits a value ([`Packed`]: each column's distances as multiples
+//! of its own step, its largest distance over 65,534): half the memory of `f32`, so a store of
+//! the same bytes keeps twice the columns. Every column handed out, solved now or kept, is
+//! the unpacked one, so a result does not depend on what the store held.
+//!
 //! Hand-written rather than a cache crate: a map, a use counter and a byte bound are all it
-//! needs, and the columns are shared (`Arc`) with the callers that asked for them.
+//! needs.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-/// One column: distances (mesh units) from a source to every vertex, rounded to `f32` (half the
-/// memory of a column solved in `f64`; the heat method's own error is a percent or more).
+use rayon::prelude::*;
+
+/// One column: distances (mesh units) from a source to every vertex, `f32::INFINITY` in another
+/// connected component.
 pub(crate) type Column = Arc<[f32]>;
+
+/// A column at 16 bits a value: distance `d` as the multiple of `step` nearest to it,
+/// `step = max / 65,534` for the column's largest finite distance `max` (so each value is off by
+/// at most `max / 131,068`: 1.5·10⁻⁵ of the largest distance, a few thousandths of an edge on a
+/// 12.5K-vertex body, where the heat method's own error is a percent or more); [`INFINITE`]
+/// for a vertex in another component.
+pub(crate) struct Packed {
+    codes: Box<[u16]>,
+    step: f32,
+}
+
+/// The code of an unreachable vertex.
+const INFINITE: u16 = u16::MAX;
+
+impl Packed {
+    pub(crate) fn new(column: &[f32]) -> Self {
+        let max = column.iter().copied().filter(|d| d.is_finite()).fold(0.0f32, f32::max);
+        let step = max / f32::from(INFINITE - 1);
+        let inv = if step > 0.0 { 1.0 / step } else { 0.0 };
+        let codes = column
+            .iter()
+            .map(|&d| {
+                if d.is_finite() {
+                    (d.max(0.0) * inv).round().min(f32::from(INFINITE - 1)) as u16
+                } else {
+                    INFINITE
+                }
+            })
+            .collect();
+        Self { codes, step }
+    }
+
+    pub(crate) fn unpacked(&self) -> Column {
+        let step = self.step;
+        self.codes.iter().map(|&c| if c == INFINITE { f32::INFINITY } else { f32::from(c) * step }).collect()
+    }
+}
 
 /// A bounded, least-recently-used store of distance columns by source vertex.
 pub(crate) struct ColumnCache {
@@ -28,7 +72,7 @@ pub(crate) struct ColumnCache {
 
 #[derive(Default)]
 struct Inner {
-    columns: HashMap<usize, (Column, u64)>,
+    columns: HashMap<usize, (Arc<Packed>, u64)>,
     clock: u64,
     solved: u64,
     reused: u64,
@@ -46,14 +90,15 @@ impl ColumnCache {
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// The columns of `sources` (in order), solving the missing ones with `solve` (called once,
-    /// with each missing source once, in first-seen order; it returns their columns in order).
+    /// The columns of `sources` (in order, each as [`Packed`] keeps it), solving the missing ones
+    /// with `solve` (called once, with each missing source once, in first-seen order; it returns
+    /// their columns in order).
     pub(crate) fn get_or_solve<E>(
         &self,
         sources: &[usize],
         solve: impl FnOnce(&[usize]) -> Result<Vec<Column>, E>,
     ) -> Result<Vec<Column>, E> {
-        let mut out: Vec<Option<Column>> = Vec::with_capacity(sources.len());
+        let mut out: Vec<Option<Arc<Packed>>> = Vec::with_capacity(sources.len());
         let mut missing = Vec::new();
         {
             let mut g = self.lock();
@@ -76,16 +121,20 @@ impl ColumnCache {
         missing.dedup();
         // keep the first-seen order of the sources for the solve
         let mut order: Vec<usize> = Vec::with_capacity(missing.len());
+        let mut placed = vec![false; missing.len()];
         for &s in sources {
-            if missing.binary_search(&s).is_ok() && !order.contains(&s) {
-                order.push(s);
+            if let Ok(i) = missing.binary_search(&s) {
+                if !std::mem::replace(&mut placed[i], true) {
+                    order.push(s);
+                }
             }
         }
-        let mut solved: HashMap<usize, Column> = HashMap::new();
+        let mut solved: HashMap<usize, Arc<Packed>> = HashMap::new();
         if !order.is_empty() {
             let cols = solve(&order)?;
             debug_assert_eq!(cols.len(), order.len());
-            solved = order.iter().copied().zip(cols).collect();
+            let packed: Vec<Arc<Packed>> = cols.par_iter().map(|c| Arc::new(Packed::new(c))).collect();
+            solved = order.iter().copied().zip(packed).collect();
             let mut g = self.lock();
             g.solved += solved.len() as u64;
             if self.capacity_columns > 0 {
@@ -108,7 +157,11 @@ impl ColumnCache {
         let mut g = self.lock();
         g.reused += out.iter().filter(|c| c.is_some()).count() as u64;
         drop(g);
-        Ok(out.into_iter().zip(sources).map(|(c, s)| c.unwrap_or_else(|| solved[s].clone())).collect())
+        Ok(out
+            .into_par_iter()
+            .zip(sources)
+            .map(|(c, s)| c.as_ref().unwrap_or_else(|| &solved[s]).unpacked())
+            .collect())
     }
 
     /// Columns solved and columns served from the store so far.
@@ -133,6 +186,28 @@ mod tests {
     }
 
     #[test]
+    fn packed_columns_keep_distances_to_a_step_and_unreachable_vertices_unreachable() {
+        let column: Vec<f32> = (0..1000).map(|i| (i as f32 * 0.0137).sin().abs() * 3.0).collect();
+        let mut with_gap = column.clone();
+        with_gap[7] = f32::INFINITY;
+        for c in [&column, &with_gap] {
+            let max = c.iter().copied().filter(|d| d.is_finite()).fold(0.0f32, f32::max);
+            let back = Packed::new(c).unpacked();
+            assert_eq!(back.len(), c.len());
+            for (a, b) in c.iter().zip(back.iter()) {
+                if a.is_finite() {
+                    // Half a step (max / 131,068), and f32's own rounding.
+                    assert!((a - b).abs() <= max / 131_068.0 * 1.001, "{a} → {b}");
+                } else {
+                    assert_eq!(*b, f32::INFINITY);
+                }
+            }
+        }
+        // A column of zeros (a one-vertex component) stays zeros.
+        assert_eq!(&*Packed::new(&[0.0, 0.0]).unpacked(), &[0.0, 0.0]);
+    }
+
+    #[test]
     fn solves_each_missing_source_once_and_evicts_the_least_recently_used() {
         let cache = ColumnCache::new(3);
         let calls = std::cell::RefCell::new(Vec::new());
@@ -141,7 +216,7 @@ mod tests {
             Ok(s.iter().map(|&v| col(v)).collect())
         };
         let got = cache.get_or_solve(&[5, 2, 5], solve).unwrap();
-        assert_eq!(got.iter().map(|c| c[0] as usize).collect::<Vec<_>>(), [5, 2, 5]);
+        assert_eq!(got.iter().map(|c| c[0].round() as usize).collect::<Vec<_>>(), [5, 2, 5]);
         assert_eq!(calls.borrow().as_slice(), [vec![5, 2]]);
         cache.get_or_solve(&[7, 2], solve).unwrap(); // 2 reused, 7 solved; 5 is now the oldest
         cache.get_or_solve(&[9], solve).unwrap(); // over capacity: 5 goes

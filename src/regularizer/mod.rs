@@ -158,9 +158,9 @@ impl PreparedShape {
         Ok(self)
     }
 
-    /// Distance columns a prepared shape keeps for reuse (least recently used dropped first), as
-    /// `f32`: `512 · n · 4` bytes at most, 41 MB at 20K vertices, 107 MB at 52K. A shape that
-    /// serves many scans keeps more ([`PreparedShape::serving_many`]).
+    /// Distance columns a prepared shape keeps for reuse (least recently used dropped first), at
+    /// 16 bits a value: `512 · n · 2` bytes at most, 20 MB at 20K vertices, 53 MB at 52K. A
+    /// shape that serves many scans keeps more ([`PreparedShape::serving_many`]).
     pub const KEPT_COLUMNS: usize = 512;
 
     /// The same shape keeping at most `columns` distance columns (0: none).
@@ -174,22 +174,24 @@ impl PreparedShape {
     pub const SERVING_BYTES: usize = 256 << 20;
 
     /// The same shape keeping as many distance columns as [`PreparedShape::SERVING_BYTES`] hold
-    /// (at least [`PreparedShape::KEPT_COLUMNS`], at most one per vertex): 5,368 at 12.5K
-    /// vertices, 3,355 at 20K, 1,290 at 52K. For a reference or relay that the maps of many
-    /// scans go onto (the daemon's model reference, an evaluation's reference and relays): a
-    /// single view asks the reference for some 1,860 columns (its game's candidates and anchor
-    /// growth's targets), the next view for many of the same, and 512 kept ones served 280 of
-    /// them (README "Distance columns kept").
+    /// (at least [`PreparedShape::KEPT_COLUMNS`], at most one per vertex; 16 bits a value):
+    /// 10,737 at 12.5K vertices, 6,710 at 20K, 2,581 at 52K. For a reference or relay that the
+    /// maps of many scans go onto (the daemon's model reference, an evaluation's reference and
+    /// relays): a single view asks the reference for some 1,860 columns (its game's candidates
+    /// and anchor growth's targets), the next view for many of the same, and 512 kept ones
+    /// served 280 of them (README "Distance columns kept"); over SCAPE's 34 views the reference
+    /// is asked for nearly every one of its 12.5K columns.
     pub fn serving_many(self) -> Self {
         let n = self.mesh.n_vertices();
         let columns =
-            (Self::SERVING_BYTES / (4 * n.max(1))).clamp(Self::KEPT_COLUMNS, n.max(Self::KEPT_COLUMNS));
+            (Self::SERVING_BYTES / (2 * n.max(1))).clamp(Self::KEPT_COLUMNS, n.max(Self::KEPT_COLUMNS));
         self.with_kept_columns(columns)
     }
 
     /// Geodesic distances (mesh units) from each source to every vertex, one column per
     /// source, solved by the heat method in one block for the sources not kept from earlier
-    /// calls (see [`PreparedShape::KEPT_COLUMNS`]).
+    /// calls (see [`PreparedShape::KEPT_COLUMNS`]), each value at 16 bits' precision (off by at
+    /// most 1.5·10⁻⁵ of the column's largest distance) whether it was kept or solved now.
     pub fn distance_columns(&self, sources: &[usize]) -> Result<Vec<Arc<[f32]>>, Error> {
         self.columns.get_or_solve(sources, |missing| Ok(self.heat.distance_columns_f32(missing)?))
     }
