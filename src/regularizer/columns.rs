@@ -31,7 +31,7 @@ pub(crate) type Column = Arc<[f32]>;
 /// `step = max / 65,534` for the column's largest finite distance `max` (so each value is off by
 /// at most `max / 131,068`: 1.5·10⁻⁵ of the largest distance, a few thousandths of an edge on a
 /// 12.5K-vertex body, where the heat method's own error is a percent or more); [`INFINITE`]
-/// for a vertex in another component.
+/// for a vertex at no finite distance (in another component), unpacked as `f32::INFINITY`.
 pub(crate) struct Packed {
     codes: Box<[u16]>,
     step: f32,
