@@ -51,11 +51,6 @@ pub(super) fn anchor_consistent_map(
 /// them: measured on SCAPE's single views, about 1 % of a view's time.)
 #[derive(Default)]
 pub(super) struct GrowthMemo {
-    inner: std::sync::Mutex<MemoInner>,
-}
-
-#[derive(Default)]
-struct MemoInner {
     base: Option<Arc<GrowthBase>>,
     /// The orientation terms and the label table of the posterior they were made for.
     turning: Option<(Option<Vec<usize>>, Turning)>,
@@ -69,13 +64,6 @@ struct MemoInner {
 /// [`for_each_candidate`].
 type Turning = Arc<Vec<Vec<f32>>>;
 
-impl GrowthMemo {
-    fn lock(&self) -> std::sync::MutexGuard<'_, MemoInner> {
-        // Every update replaces a whole field: a poisoned lock still holds consistent parts.
-        self.inner.lock().unwrap_or_else(|e| e.into_inner())
-    }
-}
-
 /// Anchor growth (see [`AnchorGrowthParams`]): returns the final map and the number of anchors
 /// of the last round. `memo` holds what an earlier growth of the same scan onto the same
 /// reference with the same settings made (see [`GrowthMemo`]); a fresh one for a growth alone.
@@ -88,64 +76,57 @@ pub(super) fn grow_anchors(
     p: &AnchorGrowthParams,
     partial: &PartialScanParams,
     prior: Option<&[Vec<f32>]>,
-    memo: &GrowthMemo,
+    memo: &mut GrowthMemo,
 ) -> Result<Grown, Error> {
-    let known = memo.lock().base.clone();
-    let base = match known {
-        Some(base) => base,
-        None => {
-            let base = Arc::new(GrowthBase::new(test, reference, p, partial)?);
-            memo.lock().base = Some(base.clone());
-            base
-        }
+    let base = match &memo.base {
+        Some(base) => Arc::clone(base),
+        None => Arc::clone(memo.base.insert(Arc::new(GrowthBase::new(test, reference, p, partial)?))),
     };
     if base.samples.len() < 3 {
         let score = base.orientation.mean_agreement(&start);
         return Ok(Grown { map: start, anchors: 0, orientation: score, reoriented: false });
     }
     // Each candidate's orientation term is the same in every round and run: made once.
-    let turning = (p.orientation > 0.0 || p.reorient > 0.0).then(|| {
-        let known = memo.lock().turning.clone();
-        match known {
-            Some((table, terms)) if table.as_deref() == posterior.label_to_vertex => terms,
-            _ => {
-                use rayon::prelude::*;
-                let terms: Turning = Arc::new(
-                    (0..test.mesh.n_vertices())
-                        .into_par_iter()
-                        .map(|m| {
-                            let mut terms = Vec::new();
-                            for_each_candidate(posterior, prior, &base.extra, m, &mut |r, _| {
-                                terms.push((0.5 * (1.0 - base.orientation.agreement(m, r))) as f32);
-                            });
-                            terms
-                        })
-                        .collect(),
-                );
-                memo.lock().turning = Some((posterior.label_to_vertex.map(<[usize]>::to_vec), terms.clone()));
-                terms
-            }
+    let turning = (p.orientation > 0.0 || p.reorient > 0.0).then(|| match &memo.turning {
+        Some((table, terms)) if table.as_deref() == posterior.label_to_vertex => Arc::clone(terms),
+        _ => {
+            use rayon::prelude::*;
+            let terms: Turning = Arc::new(
+                (0..test.mesh.n_vertices())
+                    .into_par_iter()
+                    .map(|m| {
+                        let mut terms = Vec::new();
+                        for_each_candidate(posterior, prior, &base.extra, m, &mut |r, _| {
+                            terms.push((0.5 * (1.0 - base.orientation.agreement(m, r))) as f32);
+                        });
+                        terms
+                    })
+                    .collect(),
+            );
+            memo.turning = Some((posterior.label_to_vertex.map(<[usize]>::to_vec), Arc::clone(&terms)));
+            terms
         }
     });
     let setup = GrowthSetup { base, prior, turning };
     // Reference columns are shared by both runs (and kept for the next growth): the second
     // run's rounds mostly revisit the targets of the first, and each costs a heat-method solve.
-    let (mut ref_cols, mut sample_weights) = {
-        let mut m = memo.lock();
-        (std::mem::take(&mut m.ref_cols), std::mem::take(&mut m.sample_weights))
-    };
     // The second hypothesis: a first round placed with a strong orientation term, which puts
     // every vertex on the side its orientation descriptor says (undoing a mirror image of the
     // game's anchors, whole or in part), then the ordinary rounds. The better oriented map wins.
     // Both runs' first rounds place from the same anchors (the start map's): one pass.
     let first = if p.reorient > 0.0 { vec![p.orientation, p.reorient] } else { vec![p.orientation] };
-    let runs =
-        grow_rounds(test, reference, posterior, start, p, &first, &setup, &mut ref_cols, &mut sample_weights);
-    {
-        let mut m = memo.lock();
-        (m.ref_cols, m.sample_weights) = (ref_cols, sample_weights);
-    }
-    let mut runs = runs?.into_iter();
+    let mut runs = grow_rounds(
+        test,
+        reference,
+        posterior,
+        start,
+        p,
+        &first,
+        &setup,
+        &mut memo.ref_cols,
+        &mut memo.sample_weights,
+    )?
+    .into_iter();
     let orientation = &setup.base.orientation;
     let (map, anchors) = runs.next().expect("one run per first orientation");
     let score = orientation.mean_agreement(&map);

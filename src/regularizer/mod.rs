@@ -1128,7 +1128,7 @@ pub fn dense_map(
             })
             .map(|g| growth::prior_costs(prediction, g.part_prior, g.part_candidates));
         let prior = prior.as_deref();
-        let memo = GrowthMemo::default();
+        let mut memo = GrowthMemo::default();
         let first = dense_of_equilibrium(
             test,
             reference,
@@ -1138,7 +1138,7 @@ pub fn dense_map(
             params,
             prior,
             None,
-            &memo,
+            &mut memo,
         )?;
         let Some(alternative) = sparse.alternative.as_deref() else { return Ok(first) };
         // The predicted functional map depends on the game only through whether it read the
@@ -1154,7 +1154,7 @@ pub fn dense_map(
             params,
             prior,
             predicted,
-            &memo,
+            &mut memo,
         )?;
         let table = posterior_table(prediction, label_to_vertex, sparse, reference)?;
         let posterior =
@@ -1214,7 +1214,7 @@ fn dense_of_equilibrium(
     params: &RegularizerParams,
     prior: Option<&[Vec<f32>]>,
     predicted: Option<&Mat<f64>>,
-    memo: &GrowthMemo,
+    memo: &mut GrowthMemo,
 ) -> Result<DenseMap, Error> {
     check_inputs(test, reference, prediction, label_to_vertex, params)?;
     let n_ref = reference.mesh.n_vertices();
